@@ -21,7 +21,7 @@ app = typer.Typer(
 )
 
 # One module per verb (or group of verbs); each registers itself on `app`.
-_MODULES = ["scan", "setup", "simulate", "emulator", "devices", "reconstruct", "calibrate", "view"]
+_MODULES = ["scan", "check", "setup", "simulate", "emulator", "devices", "reconstruct", "calibrate", "view"]
 
 
 def _register() -> None:

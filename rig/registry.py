@@ -1,0 +1,141 @@
+"""The one place where configuration values become devices.
+
+`"sim"`, `"replay:DIR"`, a device path or a pyserial URL are resolved here and nowhere else (no `if mock:`
+branches elsewhere). Everything is opened in an ExitStack, so every exit path stops the projector and releases
+the devices.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+from calibration.errors import ConfigError
+from calibration.file import load_calibration
+from calibration.models import ProCam
+from drivers.base import Camera, Projector
+from rig.config import RigConfig
+
+
+@dataclass
+class OpenRig:
+    """The opened devices and the calibration used to reconstruct."""
+
+    projector: Projector
+    camera: Camera
+    procam: ProCam
+    calibration_source: str
+    sim: object | None = None  # the SimWorld when the camera is simulated
+    notes: list[str] = field(default_factory=list)
+
+
+def resolve_procam(cfg: RigConfig) -> tuple[ProCam, str]:
+    """The calibration to reconstruct with, and where it came from.
+
+    `calibration` in rig.toml wins; without it, the simulated rig uses its own truth (`[sim] truth`, else the
+    preset's); a real rig without a calibration is a ConfigError naming the fix.
+    """
+    if cfg.calibration is not None:
+        cal = load_calibration(cfg.calibration)
+        return cal.to_procam(source=str(cfg.calibration)), str(cfg.calibration)
+    if cfg.camera.device == "sim":
+        sim_rig = sim_rig_from_config(cfg)
+        src = str(cfg.sim.truth) if cfg.sim.truth else f"the simulated rig's truth (scene {cfg.sim.scene!r})"
+        return sim_rig.procam, src
+    raise ConfigError(
+        f"{cfg.source or 'configuration'}: no `calibration = \"…\"` for this rig; run `rig calibrate` and point "
+        "rig.toml at the file it writes"
+    )
+
+
+def sim_rig_from_config(cfg: RigConfig):
+    """The simulated rig named by `[sim]` (scene preset, optionally built with the `truth` calibration)."""
+    from drivers.sim import preset
+
+    truth = None
+    if cfg.sim.truth is not None:
+        truth = load_calibration(cfg.sim.truth).to_procam(source=str(cfg.sim.truth))
+    return preset(cfg.sim.scene, truth=truth)
+
+
+def render_options(cfg: RigConfig):
+    from drivers.sim import RenderOptions
+
+    return RenderOptions(
+        noise_grey=cfg.sim.noise_grey, ambient=cfg.sim.ambient, gamma=cfg.sim.gamma, bit_depth=cfg.sim.bit_depth
+    )
+
+
+@contextlib.contextmanager
+def open_rig(cfg: RigConfig, *, transcript: Path | None = None) -> Iterator[OpenRig]:
+    """Open projector and camera as configured; closes both (projector stopped first) on every exit path."""
+    procam, source = resolve_procam(cfg)
+    with contextlib.ExitStack() as stack:
+        world = None
+        if cfg.camera.device == "sim" or cfg.projector.port == "sim":
+            from drivers.sim import SimWorld
+
+            world = SimWorld(sim_rig_from_config(cfg), options=render_options(cfg), seed=cfg.sim.seed)
+        projector = stack.enter_context(_open_projector(cfg, world=world, transcript=transcript))
+        camera = stack.enter_context(_open_camera(cfg, world=world, projector=projector))
+        if (camera.width, camera.height) != (procam.camera.width, procam.camera.height):
+            raise ConfigError(
+                f"the camera delivers {camera.width}x{camera.height} frames but the calibration ({source}) is for "
+                f"{procam.camera.width}x{procam.camera.height}; set [camera] width/height to match or recalibrate"
+            )
+        yield OpenRig(projector=projector, camera=camera, procam=procam, calibration_source=source, sim=world)
+
+
+def _open_projector(cfg: RigConfig, *, world, transcript: Path | None):
+    port = cfg.projector.port
+    if port == "sim":
+        from drivers.sim import SimProjector
+
+        return SimProjector(world)
+    from drivers.serial import SerialProjector, TranscriptWriter, open_transport
+
+    def reopen():
+        return open_transport(port, baudrate=cfg.projector.baudrate)
+
+    writer = TranscriptWriter(transcript) if transcript is not None else None
+    proj = SerialProjector(
+        reopen(),
+        timeout_s=cfg.projector.timeout_ms / 1000.0,
+        retries=cfg.projector.retries,
+        reopen=reopen,
+        transcript=writer,
+    )
+    try:
+        proj.hello()
+    except BaseException:
+        proj.close()
+        raise
+    return proj
+
+
+def _open_camera(cfg: RigConfig, *, world, projector: Projector):
+    dev = cfg.camera.device
+    if dev == "sim":
+        from drivers.sim import SimCamera
+
+        return SimCamera(world, source=projector)
+    if dev.startswith("replay:"):
+        from drivers.replay import ReplayCamera
+
+        return ReplayCamera(Path(dev[len("replay:") :]))
+    from drivers.v4l2 import CameraSettings, V4L2Camera, open_v4l2_capture
+
+    c = cfg.camera
+    settings = CameraSettings(
+        width=c.width,
+        height=c.height,
+        fps=c.fps,
+        fourcc=c.fourcc,
+        exposure_ms=c.exposure_ms,
+        settle_ms=c.settle_ms,
+        timeout_ms=c.timeout_ms,
+        discard=c.discard,
+    )
+    return V4L2Camera(open_v4l2_capture(dev), settings, name=dev)
