@@ -98,7 +98,8 @@ class Intrinsics:
             x = (q[:, 0] - self.cx - self.K[0, 1] * y) / self.fx
             return np.column_stack([x, y])
         crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-        out = cv2.undistortPointsIter(q.reshape(-1, 1, 2), self.K, self.dist, None, None, crit)
+        # OpenCV 5 has no undistortPointsIter; undistortPoints takes the criteria but asserts a 3x3 P.
+        out = cv2.undistortPoints(q.reshape(-1, 1, 2), self.K, self.dist, R=np.eye(3), P=np.eye(3), criteria=crit)
         return out.reshape(-1, 2)
 
     # --- 3-D <-> pixels --------------------------------------------------------------------------------------
