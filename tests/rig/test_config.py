@@ -1,0 +1,71 @@
+"""rig.toml: good files load with paths resolved; each kind of bad file gives one clear line."""
+
+from __future__ import annotations
+
+import tomllib
+
+import pytest
+
+from calibration.errors import ConfigError
+from rig.config import TEMPLATE, RigConfig, config_from_dict, config_to_toml, load_config
+
+
+def test_no_file_is_the_simulated_rig():
+    cfg = load_config(None)
+    assert cfg == RigConfig()
+    assert cfg.camera.device == "sim" and cfg.projector.port == "sim" and cfg.calibration is None
+    assert cfg.pattern.alpha1_deg == 30.0 and cfg.pattern.lines == 33
+
+
+def test_template_is_the_defaults_and_round_trips(tmp_path):
+    assert config_from_dict(tomllib.loads(TEMPLATE)) == RigConfig()
+    shown = config_to_toml(RigConfig())
+    assert config_from_dict(tomllib.loads(shown)) == RigConfig()
+
+
+def test_paths_are_relative_to_the_file(tmp_path):
+    sub = tmp_path / "rigs"
+    sub.mkdir()
+    (sub / "rig.toml").write_text(
+        'calibration = "cal/calibration.json"\n[camera]\ndevice = "replay:captures/one"\n[sim]\ntruth = "truth.json"\n'
+    )
+    cfg = load_config(sub / "rig.toml")
+    assert cfg.calibration == sub / "cal" / "calibration.json"
+    assert cfg.camera.device == f"replay:{sub / 'captures' / 'one'}"
+    assert cfg.sim.truth == sub / "truth.json"
+    assert cfg.source == (sub / "rig.toml").resolve()
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("[camra]\ndevice = 'sim'\n", r"camra: unknown key"),
+        ("[camera]\nexposure_ms = -1\n", r"camera\.exposure_ms: Input should be greater than 0"),
+        ("[camera]\nfourcc = 'MJPEG'\n", r"camera\.fourcc"),
+        ("[pattern]\nlines = 1\n", r"pattern\.lines"),
+        ("[pattern]\nalpha1_deg = 30\nalpha2_deg = 210\n", r"parallel families"),
+        ("[pattern]\nalpha1_deg = 90\n", r"alpha1_deg = 90.*vertical"),
+        ("[pattern]\nspacing = 'random'\n", r"pattern\.spacing"),
+        ("[reconstruction]\ndepth_min_mm = 500\ndepth_max_mm = 400\n", r"depth_max_mm \(400.0\) must exceed"),
+        ("[sim]\nbit_depth = 12\n", r"sim\.bit_depth"),
+        ("[camera\n", r"not valid TOML"),
+    ],
+)
+def test_bad_files(tmp_path, text, message):
+    path = tmp_path / "rig.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message) as info:
+        load_config(path)
+    assert str(path) in str(info.value)
+    assert "\n" not in str(info.value).strip()
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(ConfigError, match="no such configuration file.*rig init"):
+        load_config(tmp_path / "nope.toml")
+
+
+def test_config_is_frozen():
+    cfg = RigConfig()
+    with pytest.raises(Exception):
+        cfg.camera.fps = 10  # type: ignore[misc]
