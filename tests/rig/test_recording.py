@@ -2,11 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -20,39 +15,7 @@ def _procam() -> ProCam:
     return ProCam(cam, proj, look_at(np.array([200.0, 0, 0]), np.array([0, 0, 800.0])), [200.0, 0, 0])
 
 
-def read_entities(path: Path) -> dict[str, list[str]]:
-    from rerun.chunk import RrdReader
-
-    out: dict[str, list[str]] = {}
-    for line in RrdReader(str(path)).store().summary().splitlines():
-        entity, rest = line.split(" ", 1)
-        out.setdefault(entity, []).append(rest)
-    return out
-
-
-def column(path: Path, entity: str, name: str) -> list:
-    from rerun.chunk import RrdReader
-
-    values = []
-    for chunk in RrdReader(str(path)).stream():
-        if chunk.entity_path != entity:
-            continue
-        rb = chunk.to_record_batch()
-        if name in rb.schema.names:
-            values.extend(rb.column(name).to_pylist())
-    return values
-
-
-def verify(path: Path) -> None:
-    rerun = Path(sys.executable).with_name("rerun")
-    exe = str(rerun) if rerun.exists() else shutil.which("rerun")
-    assert exe, "the rerun CLI ships with rerun-sdk"
-    res = subprocess.run([exe, "rrd", "verify", str(path)], capture_output=True, text=True, timeout=120,
-                         env={"HOME": str(path.parent), "PATH": "/usr/bin:/bin"})
-    assert res.returncode == 0, res.stderr + res.stdout
-
-
-def test_layout_and_round_trip(tmp_path):
+def test_layout_and_round_trip(tmp_path, rrd):
     out = tmp_path / "scan.rrd"
     pc = _procam()
     frames = [np.full((48, 64), 10 * i, np.uint8) for i in range(3)]
@@ -61,37 +24,37 @@ def test_layout_and_round_trip(tmp_path):
         for i, f in enumerate(frames):
             rec.log_frame(i, f, timestamp_s=100.0 + i)
     assert out.exists() and not (tmp_path / "scan.rrd.partial").exists()
-    ents = read_entities(out)
+    ents = rrd.entities(out)
     for e in ("/world", "/world/projector", "/world/camera", "/world/camera/image", "/world/projector/pattern", "/report"):
         assert e in ents, e
     image_rows = " ".join(ents["/world/camera/image"])
     assert "rows=3" in image_rows and "frame" in image_rows and "capture_time" in image_rows
     # The camera pose reads back (column-major mat3x3, see the Rerun notes).
-    t = column(out, "/world/camera", "Transform3D:translation")[0]
+    t = rrd.column(out, "/world/camera", "Transform3D:translation")[0]
     np.testing.assert_allclose(np.array(t).ravel(), pc.t_proj_cam)
-    R = np.array(column(out, "/world/camera", "Transform3D:mat3x3")[0]).reshape(3, 3).T
+    R = np.array(rrd.column(out, "/world/camera", "Transform3D:mat3x3")[0]).reshape(3, 3).T
     np.testing.assert_allclose(R, pc.R_proj_cam, atol=1e-6)
-    K = np.array(column(out, "/world/camera", "Pinhole:image_from_camera")[0]).reshape(3, 3).T
+    K = np.array(rrd.column(out, "/world/camera", "Pinhole:image_from_camera")[0]).reshape(3, 3).T
     np.testing.assert_allclose(K, pc.camera.K)
-    verify(out)
+    rrd.verify(out)
 
 
-def test_closed_and_renamed_after_an_error(tmp_path):
+def test_closed_and_renamed_after_an_error(tmp_path, rrd):
     out = tmp_path / "scan.rrd"
     with pytest.raises(RuntimeError):
         with open_recording(out, procam=_procam()) as rec:
             rec.log_frame(0, np.zeros((48, 64), np.uint8), timestamp_s=1.0)
             raise RuntimeError("device fell over")
-    assert "rows=1" in " ".join(read_entities(out)["/world/camera/image"])
-    verify(out)
+    assert "rows=1" in " ".join(rrd.entities(out)["/world/camera/image"])
+    rrd.verify(out)
 
 
-def test_sixteen_bit_frames_keep_their_depth(tmp_path):
+def test_sixteen_bit_frames_keep_their_depth(tmp_path, rrd):
     out = tmp_path / "scan.rrd"
     with open_recording(out, procam=_procam()) as rec:
         rec.log_frame(0, np.full((48, 64), 40000, np.uint16))
     import rerun as rr
 
-    fmt = column(out, "/world/camera/image", "Image:format")[0][0]
+    fmt = rrd.column(out, "/world/camera/image", "Image:format")[0][0]
     assert rr.ChannelDatatype(fmt["channel_datatype"]).to_np_dtype() == np.uint16
     assert (fmt["width"], fmt["height"]) == (64, 48)
