@@ -86,7 +86,8 @@ class CameraSettings:
     camera's own exposure control, auto white balance and autofocus as they are). settle_ms: time after a pattern
     switch before a frame counts (the scan loop adds it to `after_s`; the camera only reports it). timeout_ms: the
     default grab deadline. discard: frames thrown away after opening (dark or auto-exposed). buffer_size: V4L2
-    buffers (1 = only the newest frame waits; None keeps OpenCV's 4).
+    buffers (1 = only the newest frame waits; None keeps OpenCV's 4). convert_rgb: OpenCV's CAP_PROP_CONVERT_RGB;
+    None switches it off for mono formats and leaves it alone otherwise.
     """
 
     width: int | None = None
@@ -98,6 +99,7 @@ class CameraSettings:
     timeout_ms: float = 2000.0
     discard: int = 3
     buffer_size: int | None = 1
+    convert_rgb: bool | None = None
 
     def __post_init__(self) -> None:
         if self.fourcc is not None and self.fourcc.strip().lower() == "keep":
@@ -303,10 +305,14 @@ class V4L2Camera:
             self._set(cv2.CAP_PROP_FPS, s.fps)
             self._check_fps()
         self._mono = s.fourcc in MONO_FORMATS
-        if self._mono:
+        convert = False if (s.convert_rgb is None and self._mono) else s.convert_rgb
+        if convert is not None:
             # With CONVERT_RGB on, OpenCV squashes Y16/Y10 to 8 bit and makes mono frames 3-channel BGR.
-            if not self._set(cv2.CAP_PROP_CONVERT_RGB, 0):
-                raise self._fail("convert_rgb", "off (mono, full bit depth)", cap.get(cv2.CAP_PROP_CONVERT_RGB))
+            ok = self._set(cv2.CAP_PROP_CONVERT_RGB, int(convert))
+            got = cap.get(cv2.CAP_PROP_CONVERT_RGB)
+            if not ok or bool(got) != convert:
+                raise self._fail("convert_rgb", "on" if convert else "off (full bit depth)", got)
+            self._applied["convert_rgb"] = convert
         if s.buffer_size is not None:
             ok = self._set(cv2.CAP_PROP_BUFFERSIZE, s.buffer_size)
             got = cap.get(cv2.CAP_PROP_BUFFERSIZE)
