@@ -221,7 +221,7 @@ class ReplayCamera:
             image = self._read_next()
         if image.shape != self._shape or image.dtype != self.dtype:
             raise DeviceError(
-                f"replay {self.directory}: {self.entries[index].path.name} is {image.shape[1]}x{image.shape[0]} "
+                f"replay {self.directory}: {self.entries[index].path.name} is "
                 f"{image.dtype} {image.shape}, but the recording's first frame is {self.dtype} {self._shape}"
             )
         while (t := time.monotonic()) <= after_s:
