@@ -126,6 +126,7 @@ def procam(
     marker_mm: Optional[float] = _MARKER_MM,
     dictionary: str = _DICT,
     camera: Optional[Path] = typer.Option(None, "--camera", help="fix the camera intrinsics from this calibration file"),
+    joint: bool = typer.Option(False, "--joint", help="let the stereo solve refine both devices' intrinsics too"),
 ) -> None:
     """Camera, projector and their pose from board poses captured under Gray code (ours or OpenCV's layout)."""
     from calibration.file import load_calibration, save_calibration
@@ -135,7 +136,7 @@ def procam(
     b = _board(board, cols, rows, squares, square_mm, marker_mm, dictionary)
     pw, ph = _pair(projector_size, "--projector-size")
     cam = load_calibration(camera).camera.to_intrinsics() if camera is not None else None
-    cal, _res = calibrate_procam_dirs(pose_dirs, board=b, projector_width=pw, projector_height=ph, camera=cam)
+    cal, _res = calibrate_procam_dirs(pose_dirs, board=b, projector_width=pw, projector_height=ph, camera=cam, joint=joint, progress=typer.echo)
     save_calibration(cal, out)
     for line in verdict(cal.quality):
         typer.echo(line)
