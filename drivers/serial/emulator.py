@@ -385,12 +385,12 @@ class Emulator:
             if name not in P.PARAMS:
                 return err("RANGE", f"no parameter {name[:16]}")
             lo, hi, _ = P.PARAMS[name]
-            if not lo <= value <= hi and not (name == "watchdog_us" and value == 0):
+            if not lo <= value <= hi:
                 return err("RANGE", f"{name} {value} outside {lo}..{hi}")
             if self.state in ("armed", "running"):
                 return err("STATE", f"{self.state}: STOP first")
             step = {"exposure_us": 100, "watchdog_us": 1000}.get(name, 4)  # the board's timer resolution
-            applied = min(max(int(round(value / step)) * step, lo if value else 0), hi)
+            applied = 0 if value == 0 else min(max(int(round(value / step)) * step, lo, step if lo == 0 else 1), hi)
             self.params[name] = applied
             return ok(**{name: applied})
         if v == "SHOW":

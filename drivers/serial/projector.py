@@ -227,7 +227,7 @@ class SerialProjector:
         self._check_param(name)
         lo, hi, _ = P.PARAMS[name]
         value = int(value)
-        if not (lo <= value <= hi or (name == "watchdog_us" and value == 0)):
+        if not lo <= value <= hi:
             raise ConfigError(f"{name}={value} is outside the protocol's range {lo}..{hi}")
         with self._lock:
             self._ready()
