@@ -89,17 +89,34 @@ def _v4l2_on(capture: cv2.VideoCapture, **settings):
     return V4L2Camera(capture, CameraSettings.keep(**settings), name="file-backed")
 
 
-def _sim_case() -> CameraCase:
+def _sim_case(bit_depth: int) -> CameraCase:
     sim = pytest.importorskip("drivers.sim", reason="drivers.sim (the simulator) is not in this tree yet")
     if not all(hasattr(sim, n) for n in ("SimWorld", "SimProjector", "SimCamera", "preset")):
         pytest.skip("drivers.sim does not export SimWorld, SimProjector, SimCamera, preset yet")
-    world = sim.SimWorld(sim.preset("tabletop"))
+    from calibration.models import Intrinsics, ProCam
+    from drivers.sim.presets import tabletop_procam
+    from drivers.sim.render import RenderOptions
+
+    def shrunk(i: Intrinsics, s: int) -> Intrinsics:
+        # The tabletop rig at 1/s of its resolution (pixel centres kept: c' = (c + 0.5) / s - 0.5), so the
+        # one-off ray cast takes milliseconds instead of half a minute.
+        K = np.array(i.K, dtype=np.float64)
+        K[0, 0] /= s
+        K[1, 1] /= s
+        K[0, 2] = (K[0, 2] + 0.5) / s - 0.5
+        K[1, 2] = (K[1, 2] + 0.5) / s - 0.5
+        return Intrinsics(i.width // s, i.height // s, K, i.dist)
+
+    truth = tabletop_procam()
+    small = ProCam(shrunk(truth.camera, 8), shrunk(truth.projector, 8), truth.R_proj_cam, truth.t_proj_cam)
+    world = sim.SimWorld(sim.preset("tabletop", truth=small), options=RenderOptions(supersample=1, bit_depth=bit_depth))
     projector = sim.SimProjector(world)
     camera = sim.SimCamera(world, source=projector)
-    return CameraCase(camera, None, None, None)
+    dtype = np.dtype(np.uint16 if bit_depth == 16 else np.uint8)
+    return CameraCase(camera, small.camera.width, small.camera.height, dtype)
 
 
-CASES = ["v4l2-images-u8", "v4l2-images-u16", "v4l2-ffmpeg-ffv1", "replay-u16", "sim"]
+CASES = ["v4l2-images-u8", "v4l2-images-u16", "v4l2-ffmpeg-ffv1", "replay-u16", "sim-u8", "sim-u16"]
 
 
 def build_case(kind: str, tmp_path: Path) -> CameraCase:
@@ -127,8 +144,8 @@ def build_case(kind: str, tmp_path: Path) -> CameraCase:
         frames = make_frames(np.uint16)
         cam = ReplayCamera(write_capture_dir(tmp_path / "capture", frames))
         return CameraCase(cam, WIDTH, HEIGHT, np.dtype(np.uint16), frames)
-    if kind == "sim":
-        return _sim_case()
+    if kind.startswith("sim-"):
+        return _sim_case(16 if kind == "sim-u16" else 8)
     raise AssertionError(kind)
 
 
@@ -189,8 +206,8 @@ def test_deadline_raises_device_timeout_quickly(camera_case):
     t0 = time.monotonic()
     with pytest.raises(DeviceTimeout):
         cam.grab(after_s=t0 + 30.0, timeout_s=0.15)
-    elapsed = time.monotonic() - t0
-    assert 0.1 <= elapsed < 1.0
+    # It may give up at once when no frame can arrive in time, or at the deadline; never much later.
+    assert time.monotonic() - t0 < 1.0
     # The camera is still usable after a timeout.
     assert _grab_now(cam).image.shape[:2] == (cam.height, cam.width)
 
