@@ -1,0 +1,323 @@
+"""One image of the projected grid in, a metric range map out.
+
+    reconstruct(image, procam, pattern, options=ReconstructOptions()) -> Reconstruction
+
+Stages (docs/reconstruction.md): extraction (`reconstruction.extraction`), labelling
+(`reconstruction.labelling`), triangulation: every labelled junction by the closest approach of its
+camera ray and projector ray, every line sample by intersecting its camera ray with the light plane of
+its labelled line (`reconstruction.geometry`). Lens distortion of both devices is removed at the
+boundary (normalised undistorted coordinates throughout).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from calibration.errors import ReconstructionError
+from calibration.models import ProCam
+from reconstruction.extraction import ExtractOptions, GridObservation, extract_grid
+from reconstruction.geometry import depth_cam, intersect_planes, triangulate_rays
+from reconstruction.labelling import LabelOptions, Labels, label_epipolar, label_paper
+from reconstruction.patterns import GridPattern
+from reconstruction.rigmodel import UNLABELLED, RigModel, rig_model
+
+#: below this margin (projector px) between a junction's epipolar line and other labels, warn
+ILL_POSED_SEPARATION_PX = 0.5
+
+
+@dataclass(frozen=True)
+class ReconstructOptions:
+    """labeller: "epipolar" (default: whole components) or "paper" (the paper's three-point triangles).
+    depth_min_mm, depth_max_mm: the working volume (camera-frame z): labels that put the surface
+    outside it are rejected, and points outside it are dropped. dense: also triangulate every line sample
+    (ray–light-plane), not only the junctions. extract, label: the stages' own options (label's depth
+    range is replaced by the one here)."""
+
+    labeller: Literal["epipolar", "paper"] = "epipolar"
+    depth_min_mm: float = 100.0
+    depth_max_mm: float = 10000.0
+    dense: bool = True
+    extract: ExtractOptions = ExtractOptions()
+    label: LabelOptions = LabelOptions()
+
+    def __post_init__(self) -> None:
+        if self.labeller not in ("epipolar", "paper"):
+            raise ValueError(f"labeller must be 'epipolar' or 'paper', got {self.labeller!r}")
+        if not 0 < self.depth_min_mm < self.depth_max_mm:
+            raise ValueError(f"need 0 < depth_min_mm < depth_max_mm, got {self.depth_min_mm}, {self.depth_max_mm}")
+
+
+@dataclass(frozen=True, eq=False)
+class Reconstruction:
+    """The result of one frame.
+
+    points_proj (N, 3) float32: world (projector) frame, mm. q_cam (N, 2) float32: their camera pixels.
+    family (N,) int8: 0 = junction, 1 = i-line sample, 2 = j-line sample.
+    label (N, 2) int32: (i, j) for junctions; for line samples the line's index in its family's slot and
+        UNLABELLED in the other. residual (N,) float32: epipolar distance of the junction's label in
+        projector px (for samples: the larger of their segment's end junctions').
+    depth_cam (H, W) float32: camera-frame z in mm at the sample's nearest pixel, NaN where nothing.
+    junctions_cam (M, 2) float32 and junction_labels (M, 2) int32 (UNLABELLED where none): every junction
+        found. segments (S, 2, 2) float32: fitted segments between junctions (for the overlay),
+        segment_labelled (S,) bool.
+    stats: counts, reasons and per-stage times (ms). warnings: human-readable sentences.
+    """
+
+    points_proj: np.ndarray
+    q_cam: np.ndarray
+    family: np.ndarray
+    label: np.ndarray
+    residual: np.ndarray
+    depth_cam: np.ndarray
+    junctions_cam: np.ndarray
+    junction_labels: np.ndarray
+    segments: np.ndarray
+    segment_labelled: np.ndarray
+    stats: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+
+    @property
+    def n_points(self) -> int:
+        return int(len(self.points_proj))
+
+
+def check_inputs(image: np.ndarray, procam: ProCam, pattern: GridPattern) -> None:
+    """ReconstructionError naming the fix if the image, calibration and pattern do not go together."""
+    img = np.asarray(image)
+    if img.ndim not in (2, 3) or img.size == 0:
+        raise ReconstructionError(f"expected a (H, W) or (H, W, 3) image, got an array of shape {img.shape}")
+    h, w = img.shape[:2]
+    cam = procam.camera
+    if (w, h) != (cam.width, cam.height):
+        raise ReconstructionError(
+            f"the image is {w}x{h} but the calibration's camera is {cam.width}x{cam.height}; "
+            "use the calibration made for this camera mode, or set camera.width/height to match it"
+        )
+    problem = pattern.fits(procam.projector.width, procam.projector.height)
+    if problem is not None:
+        raise ReconstructionError(f"pattern does not fit the projector: {problem}")
+
+
+def reconstruct(
+    image: np.ndarray, procam: ProCam, pattern: GridPattern, *, options: ReconstructOptions = ReconstructOptions()
+) -> Reconstruction:
+    """Decode one camera image of `pattern` into points and a camera-frame range map (module doc).
+
+    A frame without a usable grid gives an empty result with a warning; inconsistent inputs raise
+    ReconstructionError (`check_inputs`).
+    """
+    check_inputs(image, procam, pattern)
+    t0 = time.perf_counter()
+    model = rig_model(procam, pattern, (float(options.depth_min_mm), float(options.depth_max_mm)))
+    t_model = time.perf_counter()
+    obs = extract_grid(image, model, options=options.extract)
+    t_extract = time.perf_counter()
+    xy_cam_j = procam.camera.pixels_to_normalised(obs.q_junction)
+    if options.labeller == "paper":
+        lab = label_paper(obs, model, xy_cam_j)
+    else:
+        lo = options.label
+        lo = LabelOptions(**{**lo.__dict__, "depth_min_mm": options.depth_min_mm, "depth_max_mm": options.depth_max_mm})
+        lab = label_epipolar(obs, model, xy_cam_j, options=lo)
+    t_label = time.perf_counter()
+    result = _triangulate(image, obs, lab, model, xy_cam_j, options)
+    t_tri = time.perf_counter()
+    stats = result.stats
+    stats["ms"] = {
+        "model": 1e3 * (t_model - t0),
+        "extract": 1e3 * (t_extract - t_model),
+        "label": 1e3 * (t_label - t_extract),
+        "triangulate": 1e3 * (t_tri - t_label),
+        "total": 1e3 * (t_tri - t0),
+    }
+    return result
+
+
+def _triangulate(image, obs: GridObservation, lab: Labels, model: RigModel, xy_cam_j, options: ReconstructOptions) -> Reconstruction:
+    procam = model.procam
+    H, W = np.asarray(image).shape[:2]
+    warnings: list[str] = []
+    labelled = lab.labels[:, 0] != UNLABELLED
+    M = len(obs.q_junction)
+
+    # Junctions: closest approach of the camera ray and the projector ray of the labelled junction.
+    pj = np.zeros((0, 3))
+    qj = obs.q_junction[labelled]
+    lj = lab.labels[labelled]
+    rj = lab.residual[labelled]
+    if labelled.any():
+        pj, _gap = triangulate_rays(procam, xy_cam_j[labelled], model.junction_xy(lj[:, 0], lj[:, 1]))
+
+    # Line samples: camera ray ∩ light plane of the labelled line.
+    ps = np.zeros((0, 3))
+    qs = np.zeros((0, 2))
+    fs = np.zeros(0, np.int8)
+    ls = np.zeros((0, 2), np.int64)
+    rs = np.zeros(0)
+    if options.dense and labelled.any() and len(obs.q):
+        f = obs.family.astype(np.int64)
+        idx = np.full(len(obs.q), np.nan)
+        other = np.full(len(obs.q), np.nan)
+        res = np.full(len(obs.q), np.nan)
+        lab_f = lab.labels.astype(np.float64)
+        lab_f[~labelled] = np.nan
+        # (a) samples in a junction's disk (outside its core) belong to that junction's line of their family.
+        jn = obs.junction
+        core = float(obs.stats.get("junction_core_px", 2.0))
+        in_disk = jn >= 0
+        if in_disk.any():
+            jj = jn[in_disk]
+            far = np.linalg.norm(obs.q[in_disk] - obs.q_junction[jj], axis=1) > core
+            fam = f[in_disk]
+            li = np.where(fam == 1, lab_f[jj, 0], lab_f[jj, 1])
+            lo_ = np.where(fam == 1, lab_f[jj, 1], lab_f[jj, 0])
+            li[~far] = np.nan
+            idx[in_disk] = li
+            other[in_disk] = lo_
+            res[in_disk] = lab.residual[jj]
+        # (b) segment samples: from the segment's end junctions (which must agree).
+        seg = obs.segment
+        S = len(obs.segment_family)
+        if S:
+            ends = obs.segment_ends
+            sf = obs.segment_family.astype(np.int64)
+            la = np.where(ends[:, 0] >= 0, 1, 0)
+            lab_e = np.full((S, 2, 2), np.nan)
+            for k in (0, 1):
+                e = ends[:, k]
+                ok = e >= 0
+                lab_e[ok, k] = lab_f[e[ok]]
+            col = sf - 1  # the family's own index slot
+            own = np.take_along_axis(lab_e, np.broadcast_to(col[:, None, None], (S, 2, 1)), axis=2)[..., 0]
+            oth = np.take_along_axis(lab_e, np.broadcast_to((1 - col)[:, None, None], (S, 2, 1)), axis=2)[..., 0]
+            n_lab = np.isfinite(own).sum(axis=1)
+            seg_idx = np.where(np.isfinite(own[:, 0]), own[:, 0], own[:, 1])
+            seg_oth = np.where(n_lab == 2, 0.5 * (oth[:, 0] + oth[:, 1]), np.where(np.isfinite(oth[:, 0]), oth[:, 0], oth[:, 1]))
+            agree = (n_lab < 2) | ((own[:, 0] == own[:, 1]) & (np.abs(oth[:, 0] - oth[:, 1]) == 1))
+            # A dangling segment must be collinear with its junction (else it is another line meeting it).
+            qend = np.full((S, 2), np.nan)
+            one = n_lab == 1
+            e_one = np.where(np.isfinite(own[:, 0]), ends[:, 0], ends[:, 1])
+            qend[one] = obs.q_junction[e_one[one]]
+            nrm = np.column_stack([-obs.segment_dir[:, 1], obs.segment_dir[:, 0]])
+            off = np.abs(np.einsum("ij,ij->i", qend - obs.segment_centre, nrm))
+            straight = obs.segment_rms <= options.extract.max_segment_rms_px
+            ok_seg = (n_lab >= 1) & agree & straight & ((n_lab == 2) | (off <= 3 * options.extract.max_segment_rms_px + 0.5))
+            _ = la
+            r_e = np.full((S, 2), np.nan)
+            for k in (0, 1):
+                e = ends[:, k]
+                ok = e >= 0
+                r_e[ok, k] = lab.residual[e[ok]]
+            seg_res = np.nanmax(np.where(np.isfinite(r_e), r_e, -np.inf), axis=1)
+            in_seg = seg >= 0
+            sid = seg[in_seg]
+            idx[in_seg] = np.where(ok_seg[sid], seg_idx[sid], np.nan)
+            other[in_seg] = seg_oth[sid]
+            res[in_seg] = seg_res[sid]
+        use = np.isfinite(idx) & np.isfinite(other)
+        if use.any():
+            fam_u = f[use]
+            idx_u = idx[use]
+            oth_u = other[use]
+            # one plane per distinct (family, index, other)
+            key = np.column_stack([fam_u, idx_u, 2 * oth_u])
+            uniq, inv = np.unique(key, axis=0, return_inverse=True)
+            normals = model.light_plane_normals(uniq[:, 0].astype(np.int64), uniq[:, 1], uniq[:, 2] / 2)
+            qs = obs.q[use]
+            xy = procam.camera.pixels_to_normalised(qs)
+            ps = intersect_planes(procam, xy, normals[inv.ravel()])
+            fs = fam_u.astype(np.int8)
+            ls = np.full((len(qs), 2), UNLABELLED, np.int64)
+            ls[fam_u == 1, 0] = idx_u[fam_u == 1]
+            ls[fam_u == 2, 1] = idx_u[fam_u == 2]
+            rs = res[use]
+
+    points = np.concatenate([pj, ps]) if len(ps) else pj
+    q_all = np.concatenate([qj, qs]) if len(qs) else qj
+    fam_all = np.concatenate([np.zeros(len(pj), np.int8), fs])
+    lab_all = np.concatenate([lj, ls]) if len(ls) else lj
+    res_all = np.concatenate([rj, rs]) if len(rs) else rj
+    z = depth_cam(procam, points) if len(points) else np.zeros(0)
+    keep = np.isfinite(points).all(axis=1) & (z >= options.depth_min_mm) & (z <= options.depth_max_mm)
+    points, q_all, fam_all, lab_all, res_all, z = (
+        points[keep], q_all[keep], fam_all[keep], lab_all[keep], res_all[keep], z[keep]
+    )
+    depth = np.full((H, W), np.nan, np.float32)
+    if len(points):
+        c = np.clip(np.rint(q_all[:, 0]).astype(np.intp), 0, W - 1)
+        r = np.clip(np.rint(q_all[:, 1]).astype(np.intp), 0, H - 1)
+        depth[r, c] = z
+
+    # Overlay segments: from each segment's fit, between its extreme samples.
+    segs, seg_lab = _segment_overlay(obs, lab)
+
+    n_lab = int(labelled.sum())
+    stats = {
+        "samples": int(len(obs.q)),
+        "junctions_found": int(M),
+        "junctions_labelled": n_lab,
+        "junctions_left_out": lab.stats.get("junctions_left_out", {}),
+        "junctions_rejected": obs.stats.get("junctions_rejected", {}),
+        "segments": int(len(obs.segment_family)),
+        "edges": int(len(obs.edges)),
+        "components": int(lab.stats.get("components", 0)),
+        "components_labelled": int(lab.stats.get("components_labelled", 0)),
+        "ambiguous": int(lab.stats.get("ambiguous", 0)),
+        "triangles": int(lab.stats.get("triangles", 0)),
+        "points": int(len(points)),
+        "points_junctions": int((fam_all == 0).sum()),
+        "points_dropped_out_of_range": int((~keep).sum()),
+        "min_label_separation_px": float(model.min_separation_px),
+        "labeller": options.labeller,
+    }
+    if M == 0:
+        warnings.append("no usable grid in this frame (no line crossings found): check exposure, focus and that the pattern is shown")
+    elif n_lab == 0:
+        warnings.append(f"found {M} junctions but could not label any of them (see stats: junctions_left_out)")
+    if np.isfinite(model.min_separation_px) and model.min_separation_px < ILL_POSED_SEPARATION_PX:
+        warnings.append(
+            f"labelling is ill-posed for this rig: junctions a few labels apart lie {model.min_separation_px:.2f} projector px "
+            "from each other's epipolar lines; change the pattern angles or the camera's position"
+        )
+    return Reconstruction(
+        points_proj=points.astype(np.float32),
+        q_cam=q_all.astype(np.float32),
+        family=fam_all.astype(np.int8),
+        label=lab_all.astype(np.int32),
+        residual=res_all.astype(np.float32),
+        depth_cam=depth,
+        junctions_cam=obs.q_junction.astype(np.float32),
+        junction_labels=lab.labels.astype(np.int32),
+        segments=segs,
+        segment_labelled=seg_lab,
+        stats=stats,
+        warnings=warnings,
+    )
+
+
+def _segment_overlay(obs: GridObservation, lab: Labels) -> tuple[np.ndarray, np.ndarray]:
+    S = len(obs.segment_family)
+    if S == 0 or len(obs.q) == 0:
+        return np.zeros((0, 2, 2), np.float32), np.zeros(0, bool)
+    seg = obs.segment
+    ok = seg >= 0
+    s = np.einsum("ij,ij->i", obs.q[ok] - obs.segment_centre[seg[ok]], obs.segment_dir[seg[ok]])
+    smin = np.full(S, np.inf)
+    smax = np.full(S, -np.inf)
+    np.minimum.at(smin, seg[ok], s)
+    np.maximum.at(smax, seg[ok], s)
+    good = np.isfinite(smin) & (smax > smin)
+    a = obs.segment_centre + smin[:, None] * obs.segment_dir
+    b = obs.segment_centre + smax[:, None] * obs.segment_dir
+    segs = np.stack([a, b], axis=1)[good].astype(np.float32)
+    labelled = lab.labels[:, 0] != UNLABELLED
+    ends = obs.segment_ends[good]
+    if len(labelled) == 0:
+        return segs, np.zeros(len(segs), bool)
+    seg_lab = ((ends >= 0) & labelled[np.maximum(ends, 0)]).any(axis=1)
+    return segs, seg_lab
