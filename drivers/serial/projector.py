@@ -178,6 +178,7 @@ class SerialProjector:
                 raise DeviceTimeout(
                     f"{e} (is it a rig trigger board with its firmware flashed, at the configured baud rate?)"
                 ) from e
+            self._rebooted = False  # a boot banner before the first handshake is not a reboot to reconcile
             return self._take_hello(reply)
 
     def _take_hello(self, reply: P.Reply) -> dict:
@@ -210,6 +211,7 @@ class SerialProjector:
             reply = self._request("PING")
             t1 = self.clock()
             t_us = self._int(reply, "t_us")
+            self._note_device_time(t_us)
             self.clock_offset_s = (t0 + t1) / 2 - t_us * 1e-6
             return t1 - t0, t_us
 
@@ -469,10 +471,7 @@ class SerialProjector:
         v = reply.fields.get(key)
         if v is None or not v.lstrip("-").isdigit():
             raise ProtocolError(f"trigger board on {self.port}: reply {reply.body!r} lacks an integer {key}")
-        n = int(v)
-        if key == "t_us":
-            self._note_device_time(n)
-        return n
+        return int(v)
 
     def _msg_int(self, msg: P.Message, key: str) -> int:
         v = msg.fields.get(key)
@@ -481,6 +480,8 @@ class SerialProjector:
         return int(v)
 
     def _note_device_time(self, t_us: int) -> None:
+        """Device time from a fresh answer (PING, STATUS: queries are never cached; a cached action reply
+        carries an old time): if it went backwards, the board rebooted."""
         if t_us < self._device_us - 1000:
             self._rebooted = True  # the device clock went backwards: it rebooted
         self._device_us = t_us
@@ -601,8 +602,6 @@ class SerialProjector:
             self._showing = None
             self._device_us = -1
             self.stats.reboots += 1
-        if "t_us" in msg.fields and msg.fields["t_us"].isdigit():
-            self._note_device_time(int(msg.fields["t_us"]))
 
     def _drain_messages(self) -> None:
         """Take in whatever already arrived (a SAFE message makes `showing` None) without waiting."""
@@ -625,6 +624,8 @@ class SerialProjector:
         after `retries` resends (or at once when the link is down) reconnect and reconcile, then one more
         round. ERR replies other than BUSY raise ProtocolError (INTERNAL: DeviceError)."""
         self._check_open()
+        if recover and self._rebooted and self._info is not None:
+            self._restore()  # a BOOT banner arrived between requests: the board forgot its order
         seq = self._next_seq()
         frame = P.encode(P.request_body(seq, verb, *args))
         self.stats.sent += 1
