@@ -1,0 +1,118 @@
+"""Extraction, labelling and the whole pipeline against analytic and simulated truth."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from calibration.errors import ReconstructionError
+from calibration.models import Intrinsics, ProCam
+from reconstruction.extraction import extract_grid
+from reconstruction.patterns import GridPattern
+from reconstruction.pipeline import ReconstructOptions, reconstruct
+from reconstruction.rigmodel import UNLABELLED, rig_model
+
+
+def _sample(a: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of a (H, W[, C]) float32 array at sub-pixel points (N, 2)."""
+    m = q.astype(np.float32).reshape(-1, 1, 2)
+    return cv2.remap(a.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderValue=np.nan).reshape(len(q), -1)
+
+
+def test_line_centres_and_junctions_on_an_analytic_grid_image():
+    # Camera = projector seen straight on: the image *is* the pattern, so the lines are known exactly.
+    K = np.array([[800.0, 0, 319.5], [0, 800.0, 239.5], [0, 0, 1]])
+    dev = Intrinsics(640, 480, K)
+    procam = ProCam(dev, dev, np.eye(3), np.array([1.0, 0.5, 0.0]))
+    pattern = GridPattern(alpha1_deg=25.0, alpha2_deg=110.0, pitch_px=26.0, lines=17, line_width_px=3.0, centre_px=(320.3, 240.7))
+    img = pattern.render(640, 480).astype(np.float32) * 0.8 + 10
+    img += np.random.default_rng(0).normal(0, 1.0, img.shape).astype(np.float32)
+    model = rig_model(procam, pattern, (900.0, 1100.0))
+    obs = extract_grid(np.clip(img, 0, 255).astype(np.uint8), model)
+    x = obs.q[:, 0] - pattern.centre_px[0]
+    y = obs.q[:, 1] - pattern.centre_px[1]
+    for fam, n in ((1, pattern.n1), (2, pattern.n2)):
+        sel = obs.family == fam
+        c = y[sel] - n * x[sel]
+        k = np.rint(c / pattern.pitch_px)
+        d = np.abs(c - k * pattern.pitch_px) / np.hypot(1, n)
+        assert sel.sum() > 1000
+        assert np.median(d) < 0.05 and np.percentile(d, 99) < 1.2, (fam, np.median(d), np.percentile(d, 99))
+        # Away from the crossings (which bias the ridge) the centres are much tighter.
+        far = obs.segment[sel] >= 0
+        assert np.percentile(d[far], 95) < 0.1, np.percentile(d[far], 95)
+    ii, jj = np.meshgrid(pattern.indices, pattern.indices, indexing="ij")
+    true_j = pattern.junction_uv(ii.ravel(), jj.ravel())
+    d = np.linalg.norm(obs.q_junction[:, None] - true_j[None], axis=2).min(axis=1)
+    assert len(obs.q_junction) > 150
+    assert np.median(d) < 0.05 and d.max() < 0.3
+    # The graph: every edge joins neighbours (one index step) in the right direction.
+    lab = np.array([np.unravel_index(np.argmin(np.linalg.norm(true_j - q, axis=1)), ii.shape) for q in obs.q_junction])
+    steps = lab[obs.edges[:, 1]] - lab[obs.edges[:, 0]]
+    assert len(obs.edges) > 200
+    np.testing.assert_array_equal(steps, obs.edge_delta)
+
+
+def test_labels_line_samples_and_points_match_the_simulated_truth(small_scene):
+    s = small_scene
+    opts = ReconstructOptions(depth_min_mm=s.depth_range_mm[0], depth_max_mm=s.depth_range_mm[1])
+    rec = reconstruct(s.image, s.procam, s.pattern, options=opts)
+    assert not rec.warnings
+    st = rec.stats
+    assert st["junctions_found"] > 300
+    assert st["junctions_labelled"] >= 0.85 * st["junctions_found"]
+    # Junction labels: the truth projector pixel at the junction is next to the labelled pattern junction.
+    lab = rec.junction_labels
+    ok = lab[:, 0] != UNLABELLED
+    q_proj = _sample(s.truth.q_proj, rec.junctions_cam[ok].astype(np.float64))
+    d = np.linalg.norm(q_proj - s.pattern.junction_uv(lab[ok, 0], lab[ok, 1]), axis=1)
+    d = d[np.isfinite(d)]
+    assert np.median(d) < 0.3 and np.mean(d > 3) < 0.005, (np.median(d), np.mean(d > 3))
+    # Points: distance along the camera ray to the true surface, relative to the distance from the projector.
+    q = rec.q_cam.astype(np.float64)
+    p_true = _sample(s.truth.p_proj, q)
+    good = np.isfinite(p_true).all(axis=1)
+    rel = np.linalg.norm(rec.points_proj[good] - p_true[good], axis=1) / np.linalg.norm(p_true[good], axis=1)
+    assert rec.n_points > 8000
+    assert np.median(rel) < 5e-4, np.median(rel)
+    assert np.mean(rel > 0.01) < 0.01, np.mean(rel > 0.01)
+    # The depth map holds the same points in the camera frame.
+    assert np.isfinite(rec.depth_cam).sum() > 0.9 * rec.n_points
+    zt = s.truth.depth_cam
+    m = np.isfinite(rec.depth_cam) & np.isfinite(zt)
+    assert np.median(np.abs(rec.depth_cam[m] - zt[m]) / zt[m]) < 2e-3
+
+
+def test_paper_labeller_runs_on_the_same_graph_and_is_mostly_right(small_scene):
+    s = small_scene
+    opts = ReconstructOptions(labeller="paper", depth_min_mm=s.depth_range_mm[0], depth_max_mm=s.depth_range_mm[1], dense=False)
+    rec = reconstruct(s.image, s.procam, s.pattern, options=opts)
+    assert rec.stats["triangles"] > 100
+    lab = rec.junction_labels
+    ok = lab[:, 0] != UNLABELLED
+    q_proj = _sample(s.truth.q_proj, rec.junctions_cam[ok].astype(np.float64))
+    d = np.linalg.norm(q_proj - s.pattern.junction_uv(lab[ok, 0], lab[ok, 1]), axis=1)
+    d = d[np.isfinite(d)]
+    # Three nearly parallel epipolar lines pin the triangle across them but hardly along them (the paper's
+    # "extreme sensitivity"): a fair share of triangles still lands on the right junction.
+    assert 0.2 < np.mean(d < 1.0)
+    assert np.all((lab[ok] >= s.pattern.indices[0]) & (lab[ok] <= s.pattern.indices[-1]))
+    assert np.all(rec.family == 0)
+
+
+def test_an_empty_frame_is_a_valid_empty_result_with_a_warning(small_scene):
+    s = small_scene
+    rec = reconstruct(np.full_like(s.image, 12), s.procam, s.pattern)
+    assert rec.n_points == 0 and rec.points_proj.shape == (0, 3)
+    assert np.isnan(rec.depth_cam).all() and rec.depth_cam.shape == s.image.shape
+    assert any("no usable grid" in w for w in rec.warnings)
+
+
+def test_inconsistent_inputs_raise_with_the_fix(small_scene):
+    s = small_scene
+    with pytest.raises(ReconstructionError, match="calibration's camera is 640x480"):
+        reconstruct(s.image[:400], s.procam, s.pattern)
+    too_big = GridPattern(pitch_px=60.0, lines=33, centre_px=(399.5, 299.5))
+    with pytest.raises(ReconstructionError, match="does not fit the projector"):
+        reconstruct(s.image, s.procam, too_big)
