@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from calibration.models import Intrinsics, ProCam
-from drivers.sim.scene import Scene, intersect_scene, segment_blocked
+from drivers.sim.scene import Scene, TexturedPlane, intersect_scene, segment_blocked
 
 _CHUNK = 1 << 18  # rays per batch: bounds the temporary memory (~100 MB) of the ray caster
 
@@ -229,7 +229,7 @@ class Geometry:
     then renders any projector image.
     """
 
-    def __init__(self, procam: ProCam, scene: Scene, *, supersample: int = 3) -> None:
+    def __init__(self, procam: ProCam, scene: Scene, *, supersample: int = 3, adaptive: bool = True) -> None:
         cam = procam.camera
         self.procam = procam
         self.scene = scene
@@ -248,29 +248,119 @@ class Geometry:
         )
         for a in self.truth.as_dict().values():
             a.setflags(write=False)
-        # Shading samples: s × s rays per pixel (the centre rays again when s == 1), by blocks of rows.
+        # Shading samples: s × s per pixel, as maps of shape (H·s, W·s) (sample (ky, kx) of pixel (v, u)
+        # at [v·s + ky, u·s + kx]).
         Hs, Ws = H * s, W * s
         self._map_u = np.full((Hs, Ws), -10.0, np.float32)  # unlit samples look far outside the image
         self._map_v = np.full((Hs, Ws), -10.0, np.float32)
         self._weight = np.zeros((Hs, Ws), np.float32)
         albedo = np.zeros((Hs, Ws), np.float32)
-        u = (np.arange(Ws) + 0.5) / s - 0.5
-        rows_per_block = max(1, _CHUNK // Ws)
-        for r0 in range(0, Hs, rows_per_block):
-            r1 = min(Hs, r0 + rows_per_block)
-            if s == 1:
-                part = {k: v[r0 * Ws : r1 * Ws] for k, v in centre.items()}
-            else:
-                v = (np.arange(r0, r1) + 0.5) / s - 0.5
-                uu, vv = np.meshgrid(u, v)
-                part = _cast_chunk(procam, scene, np.column_stack([uu.ravel(), vv.ravel()]))
-            lit = part["lit"].reshape(r1 - r0, Ws)
-            q = part["q_proj"].reshape(r1 - r0, Ws, 2)
-            self._map_u[r0:r1][lit] = q[..., 0][lit]
-            self._map_v[r0:r1][lit] = q[..., 1][lit]
-            self._weight[r0:r1] = (part["albedo"] * part["cos_proj"]).reshape(r1 - r0, Ws)
-            albedo[r0:r1] = part["albedo"].reshape(r1 - r0, Ws)
+        if s == 1:
+            exact = np.ones((H, W), bool)
+        elif adaptive:
+            exact = ~self._fill_smooth(centre, albedo)
+        else:
+            exact = np.ones((H, W), bool)
+        self.exact_fraction = float(exact.mean())
+        self._fill_exact(centre, exact, albedo)
         self._albedo_px = self._box_mean(albedo)
+
+    def _views(self, *arrays: np.ndarray) -> list[np.ndarray]:
+        """(H·s, W·s) maps seen as (H, s, W, s)."""
+        H, W, s = self.procam.camera.height, self.procam.camera.width, self.supersample
+        return [a.reshape(H, s, W, s) for a in arrays]
+
+    def _fill_smooth(self, centre: dict[str, np.ndarray], albedo: np.ndarray) -> np.ndarray:
+        """Fill the samples of pixels whose 3 × 3 neighbourhood is one smooth, uniformly lit (or unlit)
+        untextured surface, by a first-order expansion of the centre rays' projector coordinates and
+        shading weight (central differences); returns that mask. The expansion is symmetric about the
+        pixel centre like the rays it replaces; its error is second order in the subsample offset
+        (docs/decisions/0012-sim-supersampling.md)."""
+        H, W, s = self.procam.camera.height, self.procam.camera.width, self.supersample
+        oid = centre["object_id"].reshape(H, W)
+        lit = centre["lit"].reshape(H, W)
+        n = centre["normal_proj"].reshape(H, W, 3)
+        q = centre["q_proj"].reshape(H, W, 2)
+        w = (centre["albedo"] * centre["cos_proj"]).reshape(H, W)
+        alb = centre["albedo"].reshape(H, W)
+        textured = np.zeros(len(self.scene.objects) + 1, bool)
+        for k, ob in enumerate(self.scene.objects):
+            textured[k] = isinstance(ob, TexturedPlane)
+        smooth = np.zeros((H, W), bool)
+        if H < 3 or W < 3:
+            return smooth
+        c = (slice(1, H - 1), slice(1, W - 1))
+        oc, lc, nc = oid[c], lit[c], n[c]
+        core = ~textured[oc]
+        with np.errstate(invalid="ignore"):
+            for dv in (-1, 0, 1):
+                for du in (-1, 0, 1):
+                    if dv == du == 0:
+                        continue
+                    nb = (slice(1 + dv, H - 1 + dv), slice(1 + du, W - 1 + du))
+                    same_surface = (oid[nb] == oc) & (lit[nb] == lc) & ((n[nb] * nc).sum(axis=2) > 0.98)
+                    core &= same_surface | ((oid[nb] == -1) & (oc == -1))
+        # The first-order expansion must be accurate: its error is about |f''|·δ²/2 with δ <= ½ px, so
+        # bound the second differences of q_proj (0.09 px: <= 0.005 projector px at s = 3) and of the
+        # weight, and the mixed difference (0.045 px), where the pixel is lit.
+        with np.errstate(invalid="ignore"):
+            q_uu = np.abs(q[1:-1, 2:] - 2 * q[1:-1, 1:-1] + q[1:-1, :-2]).max(axis=2)
+            q_vv = np.abs(q[2:, 1:-1] - 2 * q[1:-1, 1:-1] + q[:-2, 1:-1]).max(axis=2)
+            q_uv = np.abs(q[2:, 2:] - q[2:, :-2] - q[:-2, 2:] + q[:-2, :-2]).max(axis=2) / 4
+            w_2 = np.maximum(np.abs(w[1:-1, 2:] - 2 * w[1:-1, 1:-1] + w[1:-1, :-2]), np.abs(w[2:, 1:-1] - 2 * w[1:-1, 1:-1] + w[:-2, 1:-1]))
+            linear = (q_uu <= 0.09) & (q_vv <= 0.09) & (q_uv <= 0.045) & (w_2 <= 0.02)
+        smooth[c] = core & (~lc | linear)
+        offs = ((np.arange(s) + 0.5) / s - 0.5).astype(np.float32)
+        dq_du = np.zeros_like(q)
+        dq_dv = np.zeros_like(q)
+        dq_du[:, 1:-1] = (q[:, 2:] - q[:, :-2]) / 2
+        dq_dv[1:-1] = (q[2:] - q[:-2]) / 2
+        dw_du = np.zeros_like(w)
+        dw_dv = np.zeros_like(w)
+        dw_du[:, 1:-1] = (w[:, 2:] - w[:, :-2]) / 2
+        dw_dv[1:-1] = (w[2:] - w[:-2]) / 2
+        use = smooth & lit
+        mu, mv, wt, al = self._views(self._map_u, self._map_v, self._weight, albedo)
+        for ky in range(s):
+            for kx in range(s):
+                du, dv = offs[kx], offs[ky]
+                mu[:, ky, :, kx] = np.where(use, q[..., 0] + dq_du[..., 0] * du + dq_dv[..., 0] * dv, mu[:, ky, :, kx])
+                mv[:, ky, :, kx] = np.where(use, q[..., 1] + dq_du[..., 1] * du + dq_dv[..., 1] * dv, mv[:, ky, :, kx])
+                wt[:, ky, :, kx] = np.where(use, np.maximum(w + dw_du * du + dw_dv * dv, 0), wt[:, ky, :, kx])
+                al[:, ky, :, kx] = np.where(smooth, alb, al[:, ky, :, kx])
+        return smooth
+
+    def _fill_exact(self, centre: dict[str, np.ndarray], exact: np.ndarray, albedo: np.ndarray) -> None:
+        """Cast s × s rays through each pixel marked in `exact` (H, W) and fill their samples."""
+        H, W, s = self.procam.camera.height, self.procam.camera.width, self.supersample
+        if s == 1:
+            lit = centre["lit"].reshape(H, W)
+            q = centre["q_proj"].reshape(H, W, 2)
+            self._map_u[lit] = q[..., 0][lit]
+            self._map_v[lit] = q[..., 1][lit]
+            self._weight[:] = (centre["albedo"] * centre["cos_proj"]).reshape(H, W)
+            albedo[:] = centre["albedo"].reshape(H, W)
+            return
+        vv, uu = np.nonzero(exact)
+        offs = (np.arange(s) + 0.5) / s - 0.5
+        ky, kx = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
+        ky, kx = ky.ravel(), kx.ravel()
+        per_block = max(1, _CHUNK // (s * s))
+        mu, mv, wt, al = self._views(self._map_u, self._map_v, self._weight, albedo)
+        for lo in range(0, len(vv), per_block):
+            v = vv[lo : lo + per_block, None]
+            u = uu[lo : lo + per_block, None]
+            qs = np.column_stack([(u + offs[kx]).ravel(), (v + offs[ky]).ravel()])
+            part = _cast_chunk(self.procam, self.scene, qs)
+            V = np.broadcast_to(v, (len(v), s * s)).ravel()
+            U = np.broadcast_to(u, (len(u), s * s)).ravel()
+            KY = np.tile(ky, len(v))
+            KX = np.tile(kx, len(v))
+            lit = part["lit"]
+            mu[V[lit], KY[lit], U[lit], KX[lit]] = part["q_proj"][lit, 0]
+            mv[V[lit], KY[lit], U[lit], KX[lit]] = part["q_proj"][lit, 1]
+            wt[V, KY, U, KX] = part["albedo"] * part["cos_proj"]
+            al[V, KY, U, KX] = part["albedo"]
 
     def _box_mean(self, a: np.ndarray) -> np.ndarray:
         if self.supersample == 1:
