@@ -35,6 +35,9 @@ from calibration.intrinsics import MIN_VIEWS, IntrinsicsResult, calibrate_intrin
 from calibration.models import Intrinsics, ProCam
 from calibration.report import empty_regions
 
+#: from this many poses on, the stereo solve refines the intrinsics jointly by default (decision 0061).
+JOINT_MIN_VIEWS = 8
+
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm")
 
 
@@ -199,6 +202,7 @@ class ProcamResult:
     stereo_per_view_rms_px: np.ndarray
     views: tuple
     notes: list = field(default_factory=list)
+    joint: bool = False
 
     @property
     def rotation_deg(self) -> float:
@@ -234,13 +238,14 @@ def calibrate_procam(
     camera: Intrinsics | None = None,
     camera_flags: int = 0,
     projector_flags: int = 0,
-    joint: bool = False,
+    joint: bool | None = None,
 ) -> ProcamResult:
     """Camera and projector intrinsics and R_proj_cam, t_proj_cam (board units) from processed poses.
 
     Each device's intrinsics come from its own views (the projector's principal point is free); the
     stereo solve then finds R, t with both fixed. joint=True lets the stereo solve refine every
-    intrinsic parameter too (docs/decisions/0061-procam-stereo-fix-intrinsics.md explains the default).
+    intrinsic parameter too; None (default) does so from JOINT_MIN_VIEWS poses on
+    (docs/decisions/0061-procam-stereo-fix-intrinsics.md).
     camera: known camera intrinsics (then only the projector and the pose are solved). Flags are
     cv2.CALIB_* for the separate intrinsics solves (e.g. CALIB_FIX_K3 with few poses). CalibrationError
     for too few poses, inconsistent camera sizes or degenerate poses.
@@ -273,6 +278,8 @@ def calibrate_procam(
     proj_res = calibrate_intrinsics(
         P_both, Q_proj, width=projector_width, height=projector_height, names=names, flags=projector_flags, device="projector"
     )
+    if joint is None:
+        joint = len(views) >= JOINT_MIN_VIEWS
     flags = cv2.CALIB_FIX_INTRINSIC
     if joint and camera is None:
         flags = cv2.CALIB_USE_INTRINSIC_GUESS | camera_flags | projector_flags
@@ -296,7 +303,7 @@ def calibrate_procam(
     proj = Intrinsics(projector_width, projector_height, Kp, np.ravel(dp)[: max(5, len(proj_res.intrinsics.dist))])
     # stereoCalibrate: p_2 = R p_1 + T with device 1 = camera, 2 = projector  ->  p_proj = R p_cam + t.
     procam = ProCam(cam, proj, R, np.ravel(T))
-    return ProcamResult(procam, cam_res, proj_res, float(rms), np.asarray(per_view, np.float64).reshape(-1, 2), tuple(views), notes)
+    return ProcamResult(procam, cam_res, proj_res, float(rms), np.asarray(per_view, np.float64).reshape(-1, 2), tuple(views), notes, bool(joint and camera is None))
 
 
 def _fixed_camera_result(camera: Intrinsics, P, Q, names) -> IntrinsicsResult:
@@ -323,7 +330,7 @@ def calibrate_procam_dirs(
     projector_width: int,
     projector_height: int,
     camera: Intrinsics | None = None,
-    joint: bool = False,
+    joint: bool | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> tuple[CalibrationFile, ProcamResult]:
     """`rig calibrate procam`: read and process every pose directory, solve, and build the calibration file."""
@@ -338,7 +345,7 @@ def calibrate_procam_dirs(
         if progress:
             progress(f"{Path(d).name}: {len(views[-1].ids)} corners, {int(views[-1].projector_ok.sum())} in the projector")
     res = calibrate_procam(views, board=board, projector_width=projector_width, projector_height=projector_height, camera=camera, joint=joint)
-    cal = procam_calibration_file(res, board=board, inputs=[str(d) for d in pose_dirs], joint=joint)
+    cal = procam_calibration_file(res, board=board, inputs=[str(d) for d in pose_dirs])
     return cal, res
 
 
@@ -354,6 +361,7 @@ def procam_calibration_file(res: ProcamResult, *, board: Board, inputs: Sequence
             inputs=inputs,
             board=board,
             units="translations in the board's unit (square_mm)",
+            joint_refinement=bool(res.joint),
             **more,
         ),
     )

@@ -31,10 +31,24 @@ from calibration.report import GOOD_COVERAGE, GOOD_VIEWS, coverage_fraction, emp
 from rig.config import RigConfig
 
 #: (rx, ry, rz) tilts in degrees of the planned simulated poses, in order; distances vary around the
-#: working distance. Tilts of 15-30 deg in both directions about both axes condition the focal lengths.
+#: working distance. Tilts of 25-40 deg in both directions about both axes condition the focal lengths
+#: and principal points (with 15-30 deg the simulated principal points came out 3 px off).
 POSE_TILTS_DEG = (
-    (0, 0, 0), (25, 0, 5), (-25, 0, -5), (0, 25, 0), (0, -25, 10), (18, 18, -10), (-18, 18, 10),
-    (18, -18, 10), (-18, -18, -10), (10, 5, 25), (-10, -5, -25), (28, 10, 0), (-10, 28, 5), (5, -28, -5), (-28, -10, 0),
+    (0, 0, 0),
+    (35, 0, 7),
+    (-35, 0, -7),
+    (0, 35, 0),
+    (0, -35, 14),
+    (25, 25, -14),
+    (-25, 25, 14),
+    (25, -25, 14),
+    (-25, -25, -14),
+    (14, 7, 35),
+    (-14, -7, -35),
+    (39, 14, 0),
+    (-14, 39, 7),
+    (7, -39, -7),
+    (-39, -14, 0),
 )
 
 

@@ -126,7 +126,7 @@ def procam(
     marker_mm: Optional[float] = _MARKER_MM,
     dictionary: str = _DICT,
     camera: Optional[Path] = typer.Option(None, "--camera", help="fix the camera intrinsics from this calibration file"),
-    joint: bool = typer.Option(False, "--joint", help="let the stereo solve refine both devices' intrinsics too"),
+    joint: Optional[bool] = typer.Option(None, "--joint/--fix-intrinsics", help="stereo solve refines the intrinsics too (default: from 8 poses on)"),
 ) -> None:
     """Camera, projector and their pose from board poses captured under Gray code (ours or OpenCV's layout)."""
     from calibration.file import load_calibration, save_calibration
