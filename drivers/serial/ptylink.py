@@ -31,6 +31,7 @@ class _PtyServer:
         self.link = link
         self.lock = lock
         self.stopping = threading.Event()
+        self.ready = threading.Event()  # set once what the board sent before any host (its banner) is out
         self.disconnects = 0
         self.error: BaseException | None = None
         self._open()
@@ -95,6 +96,7 @@ class _PtyServer:
                     os.write(self.master, out)
                 except (BlockingIOError, OSError):
                     pass  # nobody reading and the buffer is full: a UART would lose these bytes too
+            self.ready.set()
             if gone is not None:
                 self.disconnects += 1
                 self._close()
@@ -121,6 +123,10 @@ def serve_on_pty(emulator: Emulator, *, link: str | os.PathLike | None = None) -
     server = _PtyServer(emulator, link=Path(link) if link is not None else None, lock=lock)
     thread = threading.Thread(target=server.run, name="rig-emulator-pty", daemon=True)
     thread.start()
+    # Let the power-up banner reach the terminal's buffer before a host opens it (opening discards it),
+    # as a board that booted before the host connected.
+    server.ready.wait(timeout=2.0)
+    time.sleep(0.01)
     try:
         yield server.path
     finally:
