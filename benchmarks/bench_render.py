@@ -78,8 +78,9 @@ def main(argv: list[str] | None = None) -> int:
         "Other work on the machine inflates the figures; rerun on an idle machine for clean numbers.",
         "",
         f"Scene `{args.scene}`: camera {cam.width}x{cam.height}, projector {proj.width}x{proj.height}, "
-        f"supersample {args.supersample} ({args.supersample ** 2} rays per pixel, "
-        f"{cam.width * cam.height * (args.supersample ** 2 + (args.supersample != 1)):,} rays in all including the truth rays).",
+        f"supersample {args.supersample}: one truth ray per pixel, then {args.supersample ** 2} rays per pixel for the "
+        f"{100 * world.geometry.exact_fraction:.1f} % of pixels at edges and the first-order expansion elsewhere "
+        f"({cam.width * cam.height * (1 + world.geometry.exact_fraction * args.supersample ** 2):,.0f} rays cast).",
         "",
         f"Geometry (ray casting, shadows, projector coordinates; once per rig): **{t_geometry:.2f} s**",
         "",

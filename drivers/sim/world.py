@@ -30,6 +30,11 @@ class SimWorld:
         return self.rig.procam
 
     @property
+    def geometry(self) -> Geometry:
+        """The cached geometry (maps, weights; `exact_fraction` = share of pixels ray-cast at every subsample)."""
+        return self._geometry
+
+    @property
     def truth(self) -> Truth:
         """Per-pixel ground truth (read-only arrays)."""
         return self._geometry.truth

@@ -232,3 +232,25 @@ def test_adaptive_supersampling_matches_casting_every_subsample():
     e = exact.radiance(image, ambient=0.05, projector_gain=0.9) * 255
     assert np.abs(a - e).max() < 1.0  # grey levels (8-bit scale)
     assert np.abs(a - e).mean() < 0.01
+
+
+def test_textured_board_in_front_of_the_table_occludes_and_shadows_it():
+    tex = np.full((40, 60), 200, np.uint8)  # a 60 × 40 mm grey card, 1 mm texels
+    R = look_at(np.zeros(3), np.array([0.0, 0.2, 1.0]))  # tilted slightly, facing the projector
+    board = TexturedPlane(R, np.array([0.0, 0.0, 300.0]), tex, mm_per_texel=1.0, texture_origin_mm=(-30.0, -20.0))
+    scene = Scene(objects=[Plane((0, 0, 500), (0, 0, -1)), board])
+    procam = small_rig()
+    opts = RenderOptions(noise_grey=0.0, supersample=3, ambient=0.0, projector_gain=1.0)
+    img, truth = render(procam, scene, np.full((200, 200), 255, np.uint8), options=opts, rng=np.random.default_rng(0))
+    on_board = truth.object_id == 1
+    on_table = truth.object_id == 0
+    assert on_board.sum() > 300 and on_table.sum() > 3000
+    assert truth.lit[on_board].all()
+    np.testing.assert_allclose(truth.depth_cam[on_board], procam.proj_to_cam(truth.p_proj[on_board])[:, 2], rtol=1e-5)
+    # table points whose ray to the projector crosses the card (|x|, |y| within the card at z≈300) are dark
+    p = truth.p_proj.astype(np.float64)
+    from scipy.ndimage import binary_erosion
+
+    clear_table = binary_erosion(on_table, np.ones((3, 3), bool))  # no card edge inside the pixel
+    behind = clear_table & (np.abs(p[..., 0] * 300 / p[..., 2]) < 25) & (np.abs(p[..., 1] * 300 / p[..., 2]) < 15)
+    assert behind.sum() > 100 and not truth.lit[behind].any() and img[behind].max() == 0
