@@ -381,12 +381,16 @@ class TexturedPlane:
         x0, y0 = self.texture_origin_mm
         c = ((pb[:, 0] - x0) / self.mm_per_texel - 0.5).astype(np.float32)
         r = ((pb[:, 1] - y0) / self.mm_per_texel - 0.5).astype(np.float32)
-        out = np.zeros(len(pb))
-        # cv2.remap: pixel centres at integer coordinates, as in CONVENTIONS.md; maps are (N, 1).
-        for lo in range(0, len(pb), 1 << 20):
-            hi = lo + (1 << 20)
-            v = cv2.remap(self.texture, c[lo:hi, None], r[lo:hi, None], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            out[lo:hi] = v.reshape(-1)
+        # cv2.remap: pixel centres at integer coordinates, as in CONVENTIONS.md. Its maps must have fewer
+        # than 32767 rows and columns, so the N lookups go in as a (ceil(N / 4096), 4096) map.
+        n = len(pb)
+        cols = 4096
+        rows = max(1, -(-n // cols))
+        cu = np.zeros(rows * cols, np.float32)
+        cv = np.zeros(rows * cols, np.float32)
+        cu[:n], cv[:n] = c, r
+        v = cv2.remap(self.texture, cu.reshape(rows, cols), cv.reshape(rows, cols), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out = v.reshape(-1)[:n].astype(np.float64)
         return self.albedo * out
 
 

@@ -165,3 +165,12 @@ def test_invalid_primitives_are_rejected_with_a_message():
         Plane((0, 0, 0), (0, 0, 0))
     with pytest.raises(ValueError, match="not a primitive"):
         Scene(objects=[object()])
+
+
+def test_textured_plane_lookup_handles_many_points():
+    # cv2.remap refuses maps with 32767 rows or more: 100 000 lookups must still work.
+    tex = np.tile(np.arange(256, dtype=np.uint8), (4, 1))
+    board = TexturedPlane(np.eye(3), np.zeros(3), tex, mm_per_texel=1.0)
+    x = np.linspace(0.5, 255.5, 100_000)
+    p = np.column_stack([x, np.full_like(x, 2.0), np.zeros_like(x)])
+    np.testing.assert_allclose(board.albedo_at(p), (x - 0.5) / 255, atol=1e-5)
