@@ -33,6 +33,13 @@ class RrdTools:
             out.setdefault(entity, []).append(rest)
         return out
 
+    @classmethod
+    def rows(cls, path: Path, entity: str) -> int:
+        """Total number of rows logged at `entity` (summed over its chunks)."""
+        import re
+
+        return sum(int(re.search(r"rows=(\d+)", line).group(1)) for line in cls.entities(path).get(entity, []))
+
     @staticmethod
     def column(path: Path, entity: str, name: str) -> list:
         """Every value of component column `name` logged at `entity`, in file order."""

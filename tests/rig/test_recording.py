@@ -28,7 +28,7 @@ def test_layout_and_round_trip(tmp_path, rrd):
     for e in ("/world", "/world/projector", "/world/camera", "/world/camera/image", "/world/projector/pattern", "/report"):
         assert e in ents, e
     image_rows = " ".join(ents["/world/camera/image"])
-    assert "rows=3" in image_rows and "frame" in image_rows and "capture_time" in image_rows
+    assert rrd.rows(out, "/world/camera/image") == 3 and "frame" in image_rows and "capture_time" in image_rows
     # The camera pose reads back (column-major mat3x3, see the Rerun notes).
     t = rrd.column(out, "/world/camera", "Transform3D:translation")[0]
     np.testing.assert_allclose(np.array(t).ravel(), pc.t_proj_cam)
@@ -45,7 +45,7 @@ def test_closed_and_renamed_after_an_error(tmp_path, rrd):
         with open_recording(out, procam=_procam()) as rec:
             rec.log_frame(0, np.zeros((48, 64), np.uint8), timestamp_s=1.0)
             raise RuntimeError("device fell over")
-    assert "rows=1" in " ".join(rrd.entities(out)["/world/camera/image"])
+    assert rrd.rows(out, "/world/camera/image") == 1
     rrd.verify(out)
 
 

@@ -1,0 +1,85 @@
+"""`rig scan` end to end on the built-in simulated rig: a valid recording, raw frames kept, clean stops."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from calibration.errors import DeviceError
+from rig.acquire import ScanRequest, run_scan
+from rig.cli import main
+from rig.config import config_from_dict
+
+
+
+def test_default_scan_makes_a_valid_recording(rrd, tmp_path, capsys):
+    out = tmp_path / "scan.rrd"
+    assert main(["scan", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert f"recording: {out.resolve()}" in printed and f"rerun {out}" in printed
+    ents = rrd.entities(out)
+    for e in ("/world/projector", "/world/camera", "/world/camera/image", "/world/projector/pattern"):
+        assert e in ents
+    rrd.verify(out)
+
+
+def test_record_dir_keeps_raw_frames(rrd, tmp_path):
+    out, rec = tmp_path / "scan.rrd", tmp_path / "raw"
+    assert main(["scan", "--out", str(out), "--frames", "3", "--record", str(rec)]) == 0
+    m = json.loads((rec / "manifest.json").read_text())
+    assert m["complete"] is True and len(m["frames"]) == 3
+    assert m["devices"]["camera"] and m["devices"]["projector"]
+    img = cv2.imread(str(rec / m["frames"][0]["file"]), cv2.IMREAD_UNCHANGED)
+    assert img is not None and img.ndim == 2 and img.max() > 100, "the grid is visible in the raw frame"
+    assert (rec / "calibration.json").exists() and (rec / "patterns/000.png").exists()
+    stamps = [f["timestamp_s"] for f in m["frames"]]
+    assert stamps == sorted(stamps)
+
+
+def test_ctrl_c_keeps_what_was_captured(rrd, tmp_path):
+    out, rec = tmp_path / "scan.rrd", tmp_path / "raw"
+
+    def interrupt(n: int, info: dict) -> None:
+        if n == 1:
+            raise KeyboardInterrupt
+
+    summary = run_scan(config_from_dict({}), ScanRequest(out=out, frames=10, record=rec), on_frame=interrupt)
+    assert summary.interrupted and summary.frames_captured == 2
+    assert rrd.rows(out, "/world/camera/image") == 2
+    rrd.verify(out)
+    m = json.loads((rec / "manifest.json").read_text())
+    assert m["complete"] is False and len(m["frames"]) == 2
+
+
+def test_bad_config_is_one_line_and_exit_2(rrd, tmp_path, capsys):
+    cfg = tmp_path / "rig.toml"
+    cfg.write_text("[camera]\nexposure_ms = 0\n")
+    assert main(["scan", "--config", str(cfg), "--out", str(tmp_path / "s.rrd")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("rig: error: ") and "camera.exposure_ms" in err[-1]
+    assert not (tmp_path / "s.rrd").exists()
+
+
+def test_pattern_that_does_not_fit_names_the_fix(rrd, tmp_path, capsys):
+    cfg = tmp_path / "rig.toml"
+    cfg.write_text("[pattern]\npitch_px = 60.0\n")
+    assert main(["scan", "--config", str(cfg), "--out", str(tmp_path / "s.rrd")]) == 2
+    assert "reduce pitch_px" in capsys.readouterr().err
+
+
+def test_replay_runs_out_mid_scan_and_keeps_frames(rrd, tmp_path, capsys):
+    raw = tmp_path / "raw"
+    assert main(["scan", "--out", str(tmp_path / "first.rrd"), "--frames", "2", "--record", str(raw)]) == 0
+    cfg = tmp_path / "rig.toml"
+    cfg.write_text(f'calibration = "raw/calibration.json"\n[camera]\ndevice = "replay:raw"\n')
+    out = tmp_path / "replayed.rrd"
+    code = main(["scan", "--config", str(cfg), "--out", str(out), "--frames", "5"])
+    err = capsys.readouterr().err
+    assert code == DeviceError.exit_code, err
+    assert "2 frame(s) captured before the fault are kept" in err
+    assert rrd.rows(out, "/world/camera/image") == 2
+    rrd.verify(out)
