@@ -75,8 +75,9 @@ class SeqDone:
     device_time_us: int | None
 
 
-class _LinkDown(Exception):
-    """Internal: the transport raised (port vanished, I/O error)."""
+class _LinkDown(DeviceError):
+    """The transport raised (port vanished, I/O error). Handled inside the driver by reconnecting; should it
+    escape (while following a sequence, say), it is a DeviceError like any other."""
 
 
 class SerialProjector:
@@ -386,12 +387,20 @@ class SerialProjector:
             timeout_s = run["len"] * period_s + 2 * self.timeout_s + 0.5
         deadline = run["t0"] + timeout_s
         while True:
+            ev: SeqEvent | None = None
             with self._lock:
                 item: Any
                 if self._messages:
                     item, t = self._messages.popleft()
                 else:
-                    item = self._receive(deadline, keep_messages=False)
+                    try:
+                        item = self._receive(deadline, keep_messages=False)
+                    except _LinkDown as e:
+                        self._run = None
+                        raise DeviceError(
+                            f"trigger board on {self.port}: link lost during the sequence after "
+                            f"{len(run['seen'])} events: {e}"
+                        ) from e
                     t = self._rx_time
                 if item is None:
                     self._done = self._done_from_status(run)
@@ -413,7 +422,6 @@ class SerialProjector:
                     )
                     run["seen"].add(ev.k)
                     self._showing = ev.index
-                    yield ev
                 elif item.kind == "DONE":
                     fired = self._msg_int(item, "fired")
                     self._done = SeqDone(
@@ -424,6 +432,8 @@ class SerialProjector:
                     )
                     self._run = None
                     return
+            if ev is not None:
+                yield ev  # outside the lock: the consumer may call other methods from another thread
 
     def _done_from_status(self, run: dict) -> SeqDone:
         st = self._status()
