@@ -53,6 +53,10 @@ class GridPattern(BaseModel):
         """Offsets c of the lines y = n·x + c of family 1 (i) or 2 (j), in index order."""
         if family not in (1, 2):
             raise ValueError("family is 1 (i-lines) or 2 (j-lines)")
+        if self.spacing == "debruijn":
+            from reconstruction.debruijn import debruijn_offsets_px
+
+            return debruijn_offsets_px(self.lines, self.pitch_px)
         return self.indices * self.pitch_px
 
     def junction_xy(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:

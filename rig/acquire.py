@@ -178,10 +178,11 @@ def _reconstructor(cfg: RigConfig, procam) -> Callable | None:
         return None
     from reconstruction.io import write_depth_npy, write_ply
 
+    from rig.registry import working_volume
+
+    depth_min_mm, depth_max_mm = working_volume(cfg)
     options = ReconstructOptions(
-        labeller=cfg.reconstruction.labeller,
-        depth_min_mm=cfg.reconstruction.depth_min_mm,
-        depth_max_mm=cfg.reconstruction.depth_max_mm,
+        labeller=cfg.reconstruction.labeller, depth_min_mm=depth_min_mm, depth_max_mm=depth_max_mm
     )
 
     def run(rec, image: np.ndarray, n: int, request: ScanRequest) -> dict:

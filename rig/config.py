@@ -53,12 +53,14 @@ class SimConfig(BaseModel):
 class ReconstructionConfig(BaseModel):
     model_config = _FROZEN
     labeller: Literal["epipolar", "paper"] = "epipolar"
-    depth_min_mm: float = Field(100.0, gt=0, description="working volume: nearest surface the rig should see")
-    depth_max_mm: float = Field(10000.0, gt=0)
+    depth_min_mm: float | None = Field(
+        None, gt=0, description="working volume (camera-frame z): nearest surface; None: the simulated scene's, else 100"
+    )
+    depth_max_mm: float | None = Field(None, gt=0, description="farthest surface; None: the simulated scene's, else 10000")
 
     @model_validator(mode="after")
     def _range(self) -> "ReconstructionConfig":
-        if self.depth_max_mm <= self.depth_min_mm:
+        if self.depth_min_mm is not None and self.depth_max_mm is not None and self.depth_max_mm <= self.depth_min_mm:
             raise ValueError(f"depth_max_mm ({self.depth_max_mm}) must exceed depth_min_mm ({self.depth_min_mm})")
         return self
 
@@ -203,6 +205,8 @@ spacing = "uniform"     # or "debruijn"
 
 [reconstruction]
 labeller = "epipolar"   # "epipolar" (default: whole components) or "paper" (three-point triangles)
-depth_min_mm = 100.0    # working volume along the camera axis; labels that put the surface outside it are wrong
-depth_max_mm = 10000.0
+# The working volume (camera-frame z, mm): labels that put the surface outside it are rejected, so a tight range
+# makes labelling robust. Default: the simulated scene's depth range, or 100 to 10000 mm on a real rig.
+# depth_min_mm = 500.0
+# depth_max_mm = 1500.0
 '''

@@ -60,6 +60,22 @@ def sim_rig_from_config(cfg: RigConfig):
     return preset(cfg.sim.scene, truth=truth)
 
 
+def working_volume(cfg: RigConfig) -> tuple[float, float]:
+    """(depth_min_mm, depth_max_mm) for labelling: rig.toml's values; where absent, the simulated scene's depth
+    range when the camera is simulated, else 100 and 10000 mm."""
+    lo, hi = cfg.reconstruction.depth_min_mm, cfg.reconstruction.depth_max_mm
+    if lo is not None and hi is not None:
+        return lo, hi
+    default = (100.0, 10000.0)
+    if cfg.camera.device == "sim":
+        default = tuple(float(x) for x in sim_rig_from_config(cfg).depth_range_mm)
+    lo = default[0] if lo is None else lo
+    hi = default[1] if hi is None else hi
+    if hi <= lo:
+        raise ConfigError(f"{cfg.source or 'configuration'}: [reconstruction] depth_max_mm ({hi}) must exceed depth_min_mm ({lo})")
+    return lo, hi
+
+
 def render_options(cfg: RigConfig):
     from drivers.sim import RenderOptions
 

@@ -50,3 +50,16 @@ def test_fits_names_the_fix():
     assert GridPattern().fits(1024, 1024) is None
     msg = GridPattern().fits(1024, 768)
     assert msg is not None and "outside the 1024x768 projector" in msg and "pitch_px" in msg
+
+
+def test_debruijn_spacing_keeps_junctions_on_their_lines():
+    g = GridPattern(spacing="debruijn")
+    c1, c2 = g.offsets_px(1), g.offsets_px(2)
+    steps = np.diff(c1)
+    assert len(set(np.round(steps, 6))) == 3 and (steps > 0).all(), "three spacings, increasing offsets"
+    assert c1[(g.lines - 1) // 2] == 0.0
+    ii, jj = np.meshgrid(g.indices, g.indices, indexing="ij")
+    xy = g.junction_xy(ii.ravel(), jj.ravel())
+    np.testing.assert_allclose(xy[:, 1], g.n1 * xy[:, 0] + c1[ii.ravel() - g.indices[0]], atol=1e-9)
+    np.testing.assert_allclose(xy[:, 1], g.n2 * xy[:, 0] + c2[jj.ravel() - g.indices[0]], atol=1e-9)
+    assert g.fits(1024, 1024) is None
