@@ -4,7 +4,7 @@ emulator and the transports (device path or pyserial URL, recorded transcripts).
 from drivers.serial.emulator import Emulator, EmulatorFaults
 from drivers.serial.projector import LinkStats, SeqDone, SeqEvent, SerialProjector
 from drivers.serial.ptylink import serve_on_pty
-from drivers.serial.transport import ReplayTransport, TranscriptWriter, open_transport, read_transcript
+from drivers.serial.transport import ReplayTransport, TranscriptWriter, connect, open_transport, read_transcript
 
 __all__ = [
     "Emulator",
@@ -15,6 +15,7 @@ __all__ = [
     "SeqEvent",
     "SerialProjector",
     "TranscriptWriter",
+    "connect",
     "open_transport",
     "read_transcript",
     "serve_on_pty",

@@ -210,3 +210,28 @@ class ReplayTransport:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def connect(
+    url: str,
+    *,
+    baudrate: int = 115200,
+    timeout_s: float = 0.5,
+    retries: int = 3,
+    transcript: "TranscriptWriter | None" = None,
+):
+    """Open `url` (see `open_transport`) and hand it to a SerialProjector that can reopen it after a
+    disconnect (replay transcripts are not reopened). The caller closes the projector (a context manager)."""
+    from drivers.serial.projector import SerialProjector
+
+    def reopen() -> Any:
+        return open_transport(url, baudrate=baudrate)
+
+    transport = open_transport(url, baudrate=baudrate)
+    return SerialProjector(
+        transport,
+        timeout_s=timeout_s,
+        retries=retries,
+        reopen=None if url.startswith(REPLAY_PREFIX) else reopen,
+        transcript=transcript,
+    )

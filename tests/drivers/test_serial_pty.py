@@ -130,3 +130,17 @@ def test_a_board_that_stays_away_fails_with_an_error_naming_the_problem(tmp_path
             proj.load(PATTERNS)
         assert time.monotonic() - t0 < 10
         proj._closed = True  # the board is gone; nothing to stop
+
+
+def test_connect_opens_the_port_and_reconnects_after_a_disconnect(tmp_path):
+    from drivers.serial import TranscriptWriter, connect
+
+    em = Emulator(faults=EmulatorFaults(disconnect=0.2, disconnect_s=0.05), seed=2)
+    with serve_on_pty(em, link=tmp_path / "ttyEMU") as path:
+        with TranscriptWriter(tmp_path / "serial.jsonl") as tw, connect(path, timeout_s=0.1, transcript=tw) as proj:
+            proj.load(PATTERNS)
+            for k in range(15):
+                proj.show(k % 4)
+    assert proj.stats.reconnects > 0 and max(shows_executed(em).values()) == 1
+    assert len(shows_executed(em)) == 15
+    assert (tmp_path / "serial.jsonl").read_text().count('"dir":"tx"') >= 17
