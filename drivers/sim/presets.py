@@ -13,7 +13,8 @@ import numpy as np
 
 from calibration.errors import ConfigError
 from calibration.models import Intrinsics, ProCam, look_at, rotation_from_euler_deg
-from drivers.sim.scene import Box, Cone, Cylinder, Plane, Scene, Sphere, intersect_scene
+from drivers.sim.render import cast_rays
+from drivers.sim.scene import Box, Cone, Cylinder, Plane, Scene, Sphere
 
 PRESETS: tuple[str, ...] = ("tabletop", "paper-parallel", "paper-intermediate", "paper-orthogonal")
 
@@ -21,7 +22,8 @@ PRESETS: tuple[str, ...] = ("tabletop", "paper-parallel", "paper-intermediate", 
 @dataclass(frozen=True, eq=False)
 class SimRig:
     """A simulated rig: `procam` is the truth it renders with; `depth_range_mm` = (near, far) camera-frame
-    z of every surface point the camera sees (from a ray cast every few pixels, widened by 2 %)."""
+    z of the surface points the camera sees and the projector lights (a ray cast every few pixels,
+    widened by 2 %; see `depth_range`)."""
 
     name: str
     procam: ProCam
@@ -31,15 +33,16 @@ class SimRig:
 
 
 def depth_range(procam: ProCam, scene: Scene, *, step_px: int = 4, margin: float = 0.02) -> tuple[float, float]:
-    """(near, far) camera-frame z (mm) of the surfaces seen through every `step_px`-th pixel, widened by
-    `margin` (fraction) on each side and rounded outwards to whole millimetres."""
+    """(near, far) camera-frame z (mm) of the surfaces the camera sees *and* the projector lights (inside
+    its image, facing it, not shadowed): the working volume where a pattern can be observed. From a ray
+    cast every `step_px`-th pixel, widened by `margin` (fraction) on each side, rounded outwards to mm.
+    Falls back to every surface seen if the projector lights none of them."""
     cam = procam.camera
     v, u = np.mgrid[0 : cam.height : step_px, 0 : cam.width : step_px]
-    u = np.concatenate([u.ravel(), np.arange(cam.width), np.arange(cam.width), np.zeros(cam.height), np.full(cam.height, cam.width - 1)])
-    v = np.concatenate([v.ravel(), np.zeros(cam.width), np.full(cam.width, cam.height - 1), np.arange(cam.height), np.arange(cam.height)])
-    d = cam.rays(np.column_stack([u, v]).astype(np.float64)) @ procam.R_proj_cam.T
-    t, _, oid = intersect_scene(scene, procam.t_proj_cam, d, t_min=1e-6)
-    z = t[oid >= 0]  # rays have camera z = 1, so t is the depth
+    hits = cast_rays(procam, scene, np.column_stack([u.ravel(), v.ravel()]).astype(np.float64))
+    z = hits["depth_cam"][hits["lit"]]
+    if len(z) == 0:
+        z = hits["depth_cam"][hits["object_id"] >= 0]
     if len(z) == 0:
         raise ConfigError("the simulated camera sees no part of the scene: check the truth calibration's pose")
     return float(np.floor(z.min() * (1 - margin))), float(np.ceil(z.max() * (1 + margin)))
@@ -50,25 +53,28 @@ def depth_range(procam: ProCam, scene: Scene, *, step_px: int = 4, margin: float
 # --------------------------------------------------------------------------------------------------------
 
 TABLE_DISTANCE_MM = 850.0  # projector centre to the table along the projector axis
-TABLE_TILT_DEG = 20.0  # the table recedes towards the top of the projector image
+TABLE_TILT_DEG = 10.0  # the table recedes towards the top of the projector image
 
 
 def tabletop_procam() -> ProCam:
-    """A 1280×1024 camera (fx = fy = 2300 px, e.g. a 12 mm lens on 5.2 µm pixels) 300 mm to the right of a
-    1024×1024 projector (f = 2400 px), converged on the table centre; mild distortion on both."""
+    """A 1280×1024 camera (fx = fy = 2300 px, e.g. a 12 mm lens on 5.2 µm pixels) 306 mm beside a 1024×1024
+    projector (f = 2400 px; the camera 300 mm to the right and 58 mm below), converged on the table
+    centre; mild distortion on both."""
     camera = Intrinsics(
         1280, 1024, np.array([[2300.0, 0.0, 643.5], [0.0, 2300.0, 509.0], [0.0, 0.0, 1.0]]), np.array([-0.07, 0.12, 0.0004, -0.0003, 0.0])
     )
     projector = Intrinsics(
         1024, 1024, np.array([[2400.0, 0.0, 515.0], [0.0, 2400.0, 530.0], [0.0, 0.0, 1.0]]), np.array([0.02, -0.01, 0.0, 0.0, 0.0])
     )
-    t = np.array([300.0, 0.0, 0.0])
+    # The baseline is turned 12.4° from horizontal: with the default 30°/120° grid a horizontal baseline puts
+    # junctions (i, j) and (i + 1, j − 3) on the same epipolar line (docs/decisions/0013-tabletop-baseline.md).
+    t = np.array([300.0, 66.0, 0.0])
     R = look_at(t, np.array([0.0, 0.0, TABLE_DISTANCE_MM]))
     return ProCam(camera, projector, R, t)
 
 
 def tabletop_scene() -> Scene:
-    """A tilted table 850 mm in front of the projector with two boxes, a cylinder, a cone and a sphere."""
+    """A table tilted by 10° 850 mm in front of the projector with two boxes, a cylinder, a cone and a sphere."""
     tilt = np.deg2rad(TABLE_TILT_DEG)
     up = np.array([0.0, -np.sin(tilt), -np.cos(tilt)])  # table normal, towards the projector
 
@@ -210,8 +216,8 @@ def preset(name: str, *, truth: ProCam | None = None) -> SimRig:
             scene=scene,
             depth_range_mm=depth_range(procam, scene),
             description=(
-                "tabletop: 1280x1024 camera 300 mm right of a 1024x1024 projector, converged on a table 850 mm "
-                "away (tilted 20 deg) carrying two boxes, a cylinder, a cone and a sphere"
+                "tabletop: 1280x1024 camera 306 mm beside a 1024x1024 projector, converged on a table 850 mm "
+                "away (tilted 10 deg) carrying two boxes, a cylinder, a cone and a sphere"
             ),
         )
     if name in PAPER_CAMERAS:
