@@ -58,7 +58,7 @@ TABLE_TILT_DEG = 10.0  # the table recedes towards the top of the projector imag
 
 def tabletop_procam() -> ProCam:
     """A 1280×1024 camera (fx = fy = 2300 px, e.g. a 12 mm lens on 5.2 µm pixels) 306 mm beside a 1024×1024
-    projector (f = 2400 px; the camera 300 mm to the right and 58 mm below), converged on the table
+    projector (f = 2400 px; the camera 300 mm to the right and 66 mm below), converged on the table
     centre; mild distortion on both."""
     camera = Intrinsics(
         1280, 1024, np.array([[2300.0, 0.0, 643.5], [0.0, 2300.0, 509.0], [0.0, 0.0, 1.0]]), np.array([-0.07, 0.12, 0.0004, -0.0003, 0.0])
