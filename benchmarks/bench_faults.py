@@ -30,6 +30,7 @@ RETRIES = 3
 
 def run_cell(faults: EmulatorFaults, *, shows: int, seed: int) -> dict:
     em = Emulator(faults=faults, seed=seed)
+    requested = shows
     patterns = [np.zeros((2, 2), np.uint8)] * 4
     ok = failed_shows = 0
     first_error = ""
@@ -37,7 +38,11 @@ def run_cell(faults: EmulatorFaults, *, shows: int, seed: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp, serve_on_pty(em, link=Path(tmp) / "ttyEMU") as port:
         proj = SerialProjector(open_transport(port), timeout_s=TIMEOUT_S, retries=RETRIES, reopen=lambda: open_transport(port))
         try:
-            proj.load(patterns)
+            try:
+                proj.load(patterns)
+            except DeviceError as e:
+                first_error = f"load: {e}"
+                shows = 0
             for k in range(shows):
                 try:
                     proj.show(k % 4)
@@ -46,14 +51,13 @@ def run_cell(faults: EmulatorFaults, *, shows: int, seed: int) -> dict:
                     failed_shows += 1
                     first_error = first_error or str(e)
         finally:
-            try:
-                proj.close()
-            except DeviceError as e:
-                first_error = first_error or f"close: {e}"
+            proj.close()
+            if proj.close_error is not None:
+                first_error = first_error or f"close: {proj.close_error}"
     executed = collections.Counter(b.split()[0] for b in em.executed if b.split()[1] == "SHOW")
     s = proj.stats
     return {
-        "shows": shows,
+        "shows": requested,
         "ok": ok,
         "failed_shows": failed_shows,
         "sent": s.sent,

@@ -131,6 +131,7 @@ class SerialProjector:
         self._run: dict | None = None
         self._done: SeqDone | None = None
         self._closed = False
+        self.close_error: DeviceError | None = None  # why close() could not stop the board, if it could not
         self.clock_offset_s: float | None = None  # host time ≈ device time + offset (from ping())
         self.port = str(getattr(transport, "port", None) or getattr(transport, "name", None) or type(transport).__name__)
 
@@ -140,22 +141,20 @@ class SerialProjector:
         return self
 
     def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
-        self._close(raise_errors=exc_type is None)
+        self.close()
 
     def close(self) -> None:
-        """Stop (safe state) and close the transport. Idempotent. Raises DeviceError if STOP could not be
-        delivered (the transport is closed anyway)."""
-        self._close(raise_errors=True)
-
-    def _close(self, *, raise_errors: bool) -> None:
+        """Stop (safe state) and close the transport. Idempotent, and never raises: it runs on exit paths,
+        where an error here would hide the one that got us there. If STOP could not be delivered, the
+        problem is kept in `close_error` (the board's watchdog darkens it anyway)."""
         with self._lock:
             if self._closed:
                 return
-            problem: DeviceError | None = None
             try:
-                self._stop(recover=True)
+                # Full recovery only if the board ever answered; a board that never did gets the resends only.
+                self._stop(recover=self._info is not None)
             except DeviceError as e:
-                problem = e
+                self.close_error = DeviceError(f"trigger board on {self.port}: could not stop it before closing: {e}")
             finally:
                 self._closed = True
                 self._showing = None
@@ -163,8 +162,6 @@ class SerialProjector:
                     self._t.close()
                 except OSError:
                     pass
-            if problem is not None and raise_errors:
-                raise DeviceError(f"trigger board on {self.port}: could not stop it before closing: {problem}") from problem
 
     # ------------------------------------------------------------------ public verbs
 
@@ -176,9 +173,14 @@ class SerialProjector:
             try:
                 reply = self._request("HELLO", P.PROTOCOL_VERSION, lead=True, recover=False)
             except DeviceTimeout as e:
-                raise DeviceTimeout(
-                    f"{e} (is it a rig trigger board with its firmware flashed, at the configured baud rate?)"
-                ) from e
+                if self._reopen is None:
+                    raise DeviceTimeout(
+                        f"{e} (is it a rig trigger board with its firmware flashed, at the configured baud rate?)"
+                    ) from e
+                self._reconnect(str(e))  # handshakes itself; raises DeviceError naming the problem
+                self._rebooted = False
+                assert self._info is not None
+                return dict(self._info)
             self._rebooted = False  # a boot banner before the first handshake is not a reboot to reconcile
             return self._take_hello(reply)
 

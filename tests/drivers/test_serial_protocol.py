@@ -320,3 +320,25 @@ def test_bad_arguments_are_refused_before_anything_is_sent():
             proj.set("pulse_us", 0)
         with pytest.raises(ConfigError, match="before load"):
             proj.show(0)
+
+
+class _SilentAfterHello(StrictTransport):
+    """Answers the handshake, then nothing ever again (the board was unplugged)."""
+
+    def write(self, data: bytes) -> int:
+        if self._i < len(self.script):
+            return super().write(data)
+        self.writes.append(bytes(data))
+        return len(data)
+
+
+def test_close_on_a_board_that_went_silent_does_not_raise_and_says_why():
+    clock = FakeClock()
+    t = _SilentAfterHello([HELLO], clock=clock)
+    proj = SerialProjector(t, clock=clock, timeout_s=0.05, retries=1)
+    proj.hello()
+    proj.close()  # must not raise: it runs on exit paths
+    assert isinstance(proj.close_error, DeviceError)
+    assert "could not stop it before closing" in str(proj.close_error)
+    assert t.writes[1] == b"2 STOP*%04X\n" % P.crc16(b"2 STOP") and not t.is_open
+    proj.close()  # idempotent
