@@ -36,6 +36,8 @@ OUT = Path(__file__).resolve().parent / "results" / "bench_reconstruction.md"
 
 
 def _sample(a: np.ndarray, q: np.ndarray) -> np.ndarray:
+    if len(q) == 0:
+        return np.zeros((0, a.shape[2] if a.ndim == 3 else 1))
     m = q.astype(np.float32).reshape(-1, 1, 2)
     return cv2.remap(a.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderValue=np.nan).reshape(len(q), -1)
 
