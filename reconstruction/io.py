@@ -7,10 +7,10 @@ CONVENTIONS.md) followed by any extra per-vertex properties, in the order given.
 from __future__ import annotations
 
 import os
-import tempfile
-from pathlib import Path
 
 import numpy as np
+
+from calibration.file import atomic_write
 
 _PLY_TYPES = {
     np.dtype(np.int8): "char",
@@ -22,21 +22,6 @@ _PLY_TYPES = {
     np.dtype(np.float32): "float",
     np.dtype(np.float64): "double",
 }
-
-
-def _atomic_write(path: str | os.PathLike, write) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def write_ply(path: str | os.PathLike, points: np.ndarray, **properties: np.ndarray) -> None:
@@ -74,7 +59,7 @@ def write_ply(path: str | os.PathLike, points: np.ndarray, **properties: np.ndar
     for (name, _), c in zip(fields, cols):
         rec[name] = c
     head = ("\n".join(header) + "\n").encode("ascii")
-    _atomic_write(path, lambda f: (f.write(head), f.write(rec.tobytes())))
+    atomic_write(path, lambda f: (f.write(head), f.write(rec.tobytes())))
 
 
 def write_depth_npy(path: str | os.PathLike, depth: np.ndarray) -> None:
@@ -82,4 +67,4 @@ def write_depth_npy(path: str | os.PathLike, depth: np.ndarray) -> None:
     d = np.asarray(depth, dtype=np.float32)
     if d.ndim != 2:
         raise ValueError(f"a depth map is (H, W), got shape {d.shape}")
-    _atomic_write(path, lambda f: np.save(f, d, allow_pickle=False))
+    atomic_write(path, lambda f: np.save(f, d, allow_pickle=False))

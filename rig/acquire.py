@@ -169,6 +169,17 @@ def run_scan(
     return summary
 
 
+def save_products(result, *, ply: Path | None, depth: Path | None) -> None:
+    """Write a reconstruction's PLY (points + family, i, j, residual per vertex) and depth .npy, atomically."""
+    from reconstruction.io import write_depth_npy, write_ply
+
+    if ply is not None:
+        lab = result.label
+        write_ply(ply, result.points_proj, family=result.family, i=lab[:, 0], j=lab[:, 1], residual=result.residual)
+    if depth is not None:
+        write_depth_npy(depth, result.depth_cam)
+
+
 def _reconstructor(cfg: RigConfig, procam) -> Callable | None:
     """A per-frame function reconstructing and logging one frame, or None while reconstruction is unavailable."""
     try:
@@ -176,8 +187,6 @@ def _reconstructor(cfg: RigConfig, procam) -> Callable | None:
         from rig.log_reconstruction import log_reconstruction
     except ImportError:
         return None
-    from reconstruction.io import write_depth_npy, write_ply
-
     from rig.registry import working_volume
 
     depth_min_mm, depth_max_mm = working_volume(cfg)
@@ -190,12 +199,7 @@ def _reconstructor(cfg: RigConfig, procam) -> Callable | None:
         result = reconstruct(image, procam, cfg.pattern, options=options)
         ms = (time.perf_counter() - t0) * 1000.0
         log_reconstruction(rec.stream, result)
-        ply = _numbered(request.ply, n, request.frames)
-        if ply is not None:
-            write_ply(ply, result.points_proj)
-        depth = _numbered(request.depth, n, request.frames)
-        if depth is not None:
-            write_depth_npy(depth, result.depth_cam)
+        save_products(result, ply=_numbered(request.ply, n, request.frames), depth=_numbered(request.depth, n, request.frames))
         return {"points": int(len(result.points_proj)), "ms": ms, "warnings": list(result.warnings)}
 
     return run

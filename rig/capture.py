@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from calibration.errors import DeviceError
-from calibration.file import write_text_atomic
+from calibration.file import atomic_write, write_text_atomic
 
 FORMAT = "rig-capture"
 FORMAT_VERSION = 1
@@ -38,12 +38,7 @@ def write_png_atomic(path: Path, image: np.ndarray) -> None:
     ok, buf = cv2.imencode(".png", image)
     if not ok:
         raise DeviceError(f"cannot encode a {image.dtype} {image.shape} frame as PNG")
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(buf.tobytes())
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    atomic_write(path, lambda f: f.write(buf.tobytes()))
 
 
 def software_versions() -> dict[str, str]:

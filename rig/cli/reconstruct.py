@@ -29,10 +29,10 @@ def reconstruct_cmd(
     import cv2
 
     from calibration.errors import ConfigError, ReconstructionError
-    from reconstruction.io import write_depth_npy, write_ply
     from reconstruction.pipeline import ReconstructOptions, reconstruct
     from rig.config import load_config
-    from rig.registry import resolve_procam
+    from rig.acquire import save_products
+    from rig.registry import resolve_procam, working_volume
 
     cfg = load_config(config)
     if labeller is not None and labeller not in ("epipolar", "paper"):
@@ -45,10 +45,9 @@ def reconstruct_cmd(
     if img is None:
         raise ReconstructionError(f"{image}: OpenCV cannot read this file as an image (use PNG, TIFF, BMP or JPEG)")
     procam, source = resolve_procam(cfg)
+    depth_min_mm, depth_max_mm = working_volume(cfg)
     options = ReconstructOptions(
-        labeller=labeller or cfg.reconstruction.labeller,
-        depth_min_mm=cfg.reconstruction.depth_min_mm,
-        depth_max_mm=cfg.reconstruction.depth_max_mm,
+        labeller=labeller or cfg.reconstruction.labeller, depth_min_mm=depth_min_mm, depth_max_mm=depth_max_mm
     )
     times, stages = [], []
     result = None
@@ -57,11 +56,7 @@ def reconstruct_cmd(
         times.append(result.stats["ms"]["total"])
         stages.append(result.stats["ms"])
     assert result is not None
-    if ply is not None:
-        lab = result.label
-        write_ply(ply, result.points_proj, family=result.family, i=lab[:, 0], j=lab[:, 1], residual=result.residual)
-    if depth is not None:
-        write_depth_npy(depth, result.depth_cam)
+    save_products(result, ply=ply, depth=depth)
     if out is not None:
         _write_recording(out, img, procam, cfg.pattern, result)
     if as_json:
