@@ -16,7 +16,7 @@ from typing import Callable
 import numpy as np
 
 from calibration.errors import DeviceError, RigError
-from calibration.file import CalibrationFile, dumps_calibration
+from calibration.file import CalibrationFile, dumps_calibration, write_text_atomic
 from rig.config import RigConfig, config_to_toml
 
 
@@ -30,6 +30,7 @@ class ScanRequest:
     ply: Path | None = None
     depth: Path | None = None
     reconstruct: bool = True
+    pattern: str = "grid"
 
 
 @dataclass
@@ -37,6 +38,7 @@ class ScanSummary:
     out: Path
     frames_requested: int
     frames_captured: int = 0
+    scans_done: int = 0
     points_total: int = 0
     interrupted: bool = False
     error: str | None = None
@@ -80,16 +82,52 @@ def grab_verified(camera, shown, *, settle_s: float, timeout_s: float, black_gre
     )
 
 
+@dataclass(frozen=True)
+class ScanMode:
+    """What one scan projects and how its frames become a reconstruction.
+
+    patterns: the projector images (pattern ids are their positions); sequence: the pattern ids shown, in
+    order, for one scan (one frame each); process(images, request, n) -> dict (points, warnings, ms), or None
+    when the scan only captures.
+    """
+
+    name: str
+    patterns: list
+    sequence: list[int]
+    process: Callable | None
+
+
+def scan_mode(cfg: RigConfig, procam, *, pattern: str, reconstruct: bool) -> ScanMode:
+    """The grid (one frame per scan) or the Gray-code mode (2·(⌈log2 W⌉ + ⌈log2 H⌉) + 2 frames per scan)."""
+    from calibration.errors import ConfigError
+
+    w, h = procam.projector.width, procam.projector.height
+    if pattern == "grid":
+        problem = cfg.pattern.fits(w, h)
+        if problem:
+            raise ConfigError(f"[pattern]: {problem}")
+        return ScanMode("grid", [cfg.pattern.render(w, h)], [0], _grid_processor(cfg, procam) if reconstruct else None)
+    if pattern == "graycode":
+        from reconstruction.graycode_depth import graycode_scan_patterns
+
+        patterns = graycode_scan_patterns(w, h)
+        return ScanMode(
+            "graycode", patterns, list(range(len(patterns))), _graycode_processor(cfg, procam) if reconstruct else None
+        )
+    raise ConfigError(f"--pattern {pattern!r}: expected 'grid' (single shot) or 'graycode' (dense, static scenes)")
+
+
 def run_scan(
     cfg: RigConfig,
     request: ScanRequest,
     *,
     on_frame: Callable[[int, dict], None] | None = None,
 ) -> ScanSummary:
-    """Scan `request.frames` frames on the configured rig; returns the summary (also on Ctrl-C).
+    """Run `request.frames` scans on the configured rig; returns the summary (also on Ctrl-C).
 
-    Device and protocol errors propagate after everything captured so far is closed and kept; the summary of
-    what was kept is attached to the exception as `e.summary`.
+    Each scan shows its mode's pattern sequence, one verified frame per pattern. Device and protocol errors
+    propagate after everything captured so far is closed and kept; the summary of what was kept is attached
+    to the exception as `e.summary`.
     """
     from rig.recording import open_recording
     from rig.registry import open_rig
@@ -104,6 +142,7 @@ def run_scan(
             capture = CaptureWriter(
                 request.record,
                 header={
+                    "mode": request.pattern,
                     "config": config_to_toml(cfg),
                     "pattern": cfg.pattern.model_dump(mode="json"),
                     "camera": cfg.camera.model_dump(mode="json"),
@@ -117,44 +156,50 @@ def run_scan(
         rig = stack.enter_context(open_rig(cfg, transcript=transcript))
         procam = rig.procam
         summary.calibration_source = rig.calibration_source
-        problem = cfg.pattern.fits(procam.projector.width, procam.projector.height)
-        if problem:
-            from calibration.errors import ConfigError
-
-            raise ConfigError(f"[pattern]: {problem}")
-        pattern_image = cfg.pattern.render(procam.projector.width, procam.projector.height)
-        rig.projector.load([pattern_image])
+        mode = scan_mode(cfg, procam, pattern=request.pattern, reconstruct=request.reconstruct)
+        rig.projector.load(mode.patterns)
         devices = {"projector": rig.projector.describe(), "camera": rig.camera.describe()}
         if capture is not None:
             capture.header["devices"] = devices
             capture.header["calibration_source"] = rig.calibration_source
-            capture.write_pattern(0, pattern_image)
-            (capture.dir / "calibration.json").write_text(dumps_calibration(CalibrationFile.from_procam(procam)))
+            for k, image in enumerate(mode.patterns):
+                capture.write_pattern(k, image)
+            write_text_atomic(capture.dir / "calibration.json", dumps_calibration(CalibrationFile.from_procam(procam)))
 
-        recon = _reconstructor(cfg, procam) if request.reconstruct else None
-        summary.reconstructed = recon is not None
+        summary.reconstructed = mode.process is not None
+        single = len(mode.sequence) == 1
         rec = stack.enter_context(
-            open_recording(request.out, procam=procam, pattern_image=pattern_image,
-                           report={"calibration": rig.calibration_source, "devices": devices})
+            open_recording(request.out, procam=procam, pattern_image=mode.patterns[0] if single else None,
+                           report={"calibration": rig.calibration_source, "devices": devices, "mode": mode.name})
         )
         settle_s = cfg.camera.settle_ms / 1000.0
         timeout_s = cfg.camera.timeout_ms / 1000.0
+        frame_no = 0
         try:
             for n in range(request.frames):
-                shown = rig.projector.show(0)
-                frame = grab_verified(rig.camera, shown, settle_s=settle_s, timeout_s=timeout_s)
-                meta = {"device_time_us": shown.device_time_us, "exposure_ms": cfg.camera.exposure_ms}
-                # Raw data first: on disk (and in the recording) before anything can fail on it.
-                if capture is not None:
-                    capture.write_frame(frame.image, pattern=shown.index, timestamp_s=frame.timestamp_s, **meta)
-                rec.log_frame(n, frame.image, timestamp_s=frame.timestamp_s)
-                summary.frames_captured += 1
-                info: dict = {"frame": n}
-                if recon is not None:
-                    info.update(recon(rec, frame.image, n, request))
+                images = []
+                for pattern_id in mode.sequence:
+                    shown = rig.projector.show(pattern_id)
+                    frame = grab_verified(rig.camera, shown, settle_s=settle_s, timeout_s=timeout_s,
+                                          black_grey=8.0 if single else 0.0)
+                    meta = {"device_time_us": shown.device_time_us, "exposure_ms": cfg.camera.exposure_ms}
+                    # Raw data first: on disk (and in the recording) before anything can fail on it.
+                    if capture is not None:
+                        capture.write_frame(frame.image, pattern=shown.index, timestamp_s=frame.timestamp_s, **meta)
+                    rec.log_frame(frame_no, frame.image, timestamp_s=frame.timestamp_s)
+                    if not single:
+                        rec.log_pattern(mode.patterns[pattern_id], index=pattern_id)
+                    summary.frames_captured += 1
+                    frame_no += 1
+                    images.append(frame.image)
+                info: dict = {"scan": n, "frame": frame_no - 1}
+                if mode.process is not None:
+                    info.update(mode.process(rec, images, n, request))
                     summary.points_total += info.get("points", 0)
                     for w in info.get("warnings", []):
-                        summary.warnings.append(f"frame {n}: {w}")
+                        summary.warnings.append(f"scan {n}: {w}")
+                del images
+                summary.scans_done += 1
                 if on_frame is not None:
                     on_frame(n, info)
         except KeyboardInterrupt:
@@ -180,23 +225,35 @@ def save_products(result, *, ply: Path | None, depth: Path | None) -> None:
         write_depth_npy(depth, result.depth_cam)
 
 
-def _reconstructor(cfg: RigConfig, procam) -> Callable | None:
-    """A per-frame function reconstructing and logging one frame, or None while reconstruction is unavailable."""
-    try:
-        from reconstruction.pipeline import ReconstructOptions, reconstruct
-        from rig.log_reconstruction import log_reconstruction
-    except ImportError:
-        return None
+def _grid_processor(cfg: RigConfig, procam) -> Callable:
+    from reconstruction.pipeline import ReconstructOptions, reconstruct
+
     from rig.registry import working_volume
 
     depth_min_mm, depth_max_mm = working_volume(cfg)
     options = ReconstructOptions(
         labeller=cfg.reconstruction.labeller, depth_min_mm=depth_min_mm, depth_max_mm=depth_max_mm
     )
+    return _processor(lambda images: reconstruct(images[0], procam, cfg.pattern, options=options))
 
-    def run(rec, image: np.ndarray, n: int, request: ScanRequest) -> dict:
+
+def _graycode_processor(cfg: RigConfig, procam) -> Callable:
+    from reconstruction.graycode_depth import GrayCodeOptions, reconstruct_graycode
+
+    from rig.registry import working_volume
+
+    depth_min_mm, depth_max_mm = working_volume(cfg)
+    options = GrayCodeOptions(depth_min_mm=depth_min_mm, depth_max_mm=depth_max_mm)
+    return _processor(lambda images: reconstruct_graycode(images, procam, options=options))
+
+
+def _processor(solve: Callable) -> Callable:
+    """Wrap a reconstruction function: time it, log the result, write the requested products."""
+    from rig.log_reconstruction import log_reconstruction
+
+    def run(rec, images: list, n: int, request: ScanRequest) -> dict:
         t0 = time.perf_counter()
-        result = reconstruct(image, procam, cfg.pattern, options=options)
+        result = solve(images)
         ms = (time.perf_counter() - t0) * 1000.0
         log_reconstruction(rec.stream, result)
         save_products(result, ply=_numbered(request.ply, n, request.frames), depth=_numbered(request.depth, n, request.frames))

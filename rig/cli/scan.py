@@ -14,10 +14,13 @@ def register(app: typer.Typer) -> None:
 def scan(
     out: Path = typer.Option(Path("scan.rrd"), "--out", "-o", help="the Rerun recording to write"),
     config: Path = typer.Option(None, "--config", "-c", help="rig.toml (default: the built-in simulated rig)"),
-    frames: int = typer.Option(1, "--frames", "-n", min=1, help="number of frames to scan (a moving object)"),
+    frames: int = typer.Option(1, "--frames", "-n", min=1, help="number of scans (grid: one frame each; a moving object)"),
     record: Path = typer.Option(None, "--record", help="also keep the raw frames, manifest and serial transcript here"),
     ply: Path = typer.Option(None, "--ply", help="write the points as binary PLY (world frame, mm)"),
     depth: Path = typer.Option(None, "--depth", help="write the camera depth map as float32 .npy (mm, NaN = none)"),
+    pattern: str = typer.Option(
+        "grid", "--pattern", help="grid: single shot, moving scenes; graycode: dense, static scenes, 2·(⌈log2 W⌉+⌈log2 H⌉)+2 frames"
+    ),
     no_reconstruct: bool = typer.Option(False, "--no-reconstruct", help="capture and record only"),
 ) -> None:
     """Scan with the configured rig (default: the built-in simulated rig) into a Rerun recording."""
@@ -30,9 +33,11 @@ def scan(
     cfg = load_config(config)
     if out.suffix != ".rrd":
         raise typer.BadParameter(f"{out}: the recording must end in .rrd", param_hint="--out")
-    request = ScanRequest(out=out, frames=frames, record=record, ply=ply, depth=depth, reconstruct=not no_reconstruct)
+    request = ScanRequest(
+        out=out, frames=frames, record=record, ply=ply, depth=depth, reconstruct=not no_reconstruct, pattern=pattern
+    )
     where = cfg.source or "the built-in simulated rig"
-    typer.echo(f"scanning {frames} frame{'s' if frames > 1 else ''} with {where}", err=True)
+    typer.echo(f"scanning {frames} {pattern} scan{'s' if frames > 1 else ''} with {where}", err=True)
     with Progress(
         TextColumn("[progress.description]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
         TextColumn("{task.fields[info]}"), transient=True, disable=frames < 2,
@@ -59,7 +64,10 @@ def scan(
 def _report(summary, out: Path) -> None:
     s = summary
     state = "interrupted: " if s.interrupted else ""
-    typer.echo(f"{state}{s.frames_captured} of {s.frames_requested} frame(s) captured; calibration: {s.calibration_source}")
+    typer.echo(
+        f"{state}{s.scans_done} of {s.frames_requested} scan(s) done, {s.frames_captured} frame(s) captured; "
+        f"calibration: {s.calibration_source}"
+    )
     if s.reconstructed:
         typer.echo(f"reconstructed {s.points_total} points")
     else:

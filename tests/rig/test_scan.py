@@ -83,3 +83,22 @@ def test_replay_runs_out_mid_scan_and_keeps_frames(rrd, tmp_path, capsys):
     assert "2 frame(s) captured before the fault are kept" in err
     assert rrd.rows(out, "/world/camera/image") == 2
     rrd.verify(out)
+
+
+def test_graycode_mode_scans_the_whole_sequence_and_measures_depth(rrd, tmp_path):
+    from drivers.sim import SimWorld, preset
+
+    out, rec, depth = tmp_path / "gc.rrd", tmp_path / "raw", tmp_path / "depth.npy"
+    summary = run_scan(config_from_dict({}), ScanRequest(out=out, record=rec, depth=depth, pattern="graycode"))
+    m = json.loads((rec / "manifest.json").read_text())
+    n = len(m["frames"])
+    assert n == summary.frames_captured == 42  # 2·(10 + 10) + 2 for a 1024×1024 projector
+    assert [f["pattern"] for f in m["frames"]] == list(range(n))
+    assert rrd.rows(out, "/world/camera/image") == n
+    measured = np.load(depth)
+    truth = SimWorld(preset("tabletop")).truth.depth_cam
+    both = np.isfinite(measured) & np.isfinite(truth)
+    assert both.sum() > 0.5 * np.isfinite(truth).sum()
+    rel = np.abs(measured[both] - truth[both]) / truth[both]
+    assert np.median(rel) < 5e-4
+    rrd.verify(out)
