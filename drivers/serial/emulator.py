@@ -106,6 +106,7 @@ class Emulator:
         self._rng = random.Random(seed)
         self.fault_counts = {k: 0 for k in EmulatorFaults.KINDS}
         self.executed: list[str] = []
+        self.executed_boot: list[int] = []  # the boot number (`boots`) each entry of `executed` ran in
         self.cache_hits = 0
         self.boots = 0
         self._out: list[tuple[float, bytes]] = []  # FIFO of (due host time, bytes)
@@ -321,6 +322,7 @@ class Emulator:
             self._send(self._cache[2])
             return
         self.executed.append(req.body)
+        self.executed_boot.append(self.boots)
         reply, at = self._execute(req)
         frame = self._emit(reply, at=at)
         if cacheable and " ERR BUSY" not in reply:

@@ -33,8 +33,9 @@ class LinkStats:
     """Counters of one driver's link (the fault matrix reads them).
 
     sent: requests issued; retries: resends of a request with its sequence number; recovered: requests
-    that succeeded after at least one resend; failed: requests given up (an exception was raised);
-    refused: ERR replies other than BUSY; reconnects; reboots: device reboots noticed; garbage: received
+    that succeeded after at least one resend; failed: requests that raised (given up, or refused);
+    refused: those of them refused with an ERR reply (not BUSY); reconnects; reboots: device reboots
+    noticed (a banner, the clock going backwards, or STATUS having forgotten the patterns); garbage: received
     lines that were not valid frames; stale: valid replies to an earlier request (late duplicates).
     """
 
@@ -630,7 +631,13 @@ class SerialProjector:
             self._lock.release()
 
     def _request(
-        self, verb: str, *args: object, extra_s: float = 0.0, recover: bool = True, lead: bool = False
+        self,
+        verb: str,
+        *args: object,
+        extra_s: float = 0.0,
+        recover: bool = True,
+        lead: bool = False,
+        reissued: bool = False,
     ) -> P.Reply:
         """Send one request and return its OK reply, resending the same frame on silence, garbage or BUSY;
         after `retries` resends (or at once when the link is down) reconnect and reconcile, then one more
@@ -659,7 +666,12 @@ class SerialProjector:
                 return reply
             if outcome == "err":
                 assert reply is not None
+                if reply.code == "STATE" and recover and not reissued and self._n and self._unseen_reboot():
+                    # The board forgot its order: it rebooted and its banner was lost. It did not execute
+                    # this request (and cached the refusal), so after restoring we ask again, as a new one.
+                    return self._request(verb, *args, extra_s=extra_s, recover=recover, reissued=True)
                 self.stats.refused += 1
+                self.stats.failed += 1
                 cls = DeviceError if reply.code == "INTERNAL" else ProtocolError
                 raise cls(f"trigger board on {self.port} refused {verb}: ERR {reply.code} {reply.text}".rstrip())
             prefix = b"\n"  # end whatever partial line the board may hold before resending
@@ -688,6 +700,15 @@ class SerialProjector:
             budget = self.retries
             resends += 1
             self.stats.retries += 1
+
+    def _unseen_reboot(self) -> bool:
+        """After ERR STATE: does STATUS show the board lost the patterns we loaded? Then restore them."""
+        status = self._status(recover=False)
+        if status.get("n", 0) == self._n:
+            return False
+        self.stats.reboots += 1
+        self._restore()
+        return True
 
     def _restore_quietly(self, verb: str) -> None:
         """The board rebooted while a request was pending: restore its state before the resend."""

@@ -152,6 +152,8 @@ def test_errors_that_are_not_transient_raise_without_resending():
         HELLO,
         (b"2 LOAD 4 0 0,1,2,3*C8D1\n", f("2 OK n=4 len=4")),
         (b"3 SHOW 3*1DAA\n", f("3 ERR STATE running: STOP first")),
+        # a STATE refusal: has the board forgotten the patterns (an unseen reboot)? No: report it
+        (f("4 STATUS"), f("4 OK state=running i=-1 n=4 len=4 k=1 triggers=1 missed=0 last=3 t_us=10")),
     ]
     with expected_protocol(script) as (proj, _t):
         proj.load(PATTERNS)
@@ -342,3 +344,18 @@ def test_close_on_a_board_that_went_silent_does_not_raise_and_says_why():
     assert "could not stop it before closing" in str(proj.close_error)
     assert t.writes[1] == b"2 STOP*%04X\n" % P.crc16(b"2 STOP") and not t.is_open
     proj.close()  # idempotent
+
+
+def test_a_reboot_whose_banner_was_lost_is_found_by_status_restored_and_the_show_reissued():
+    script = [
+        HELLO,
+        (f("2 LOAD 4 0 0,1,2,3"), f("2 OK n=4 len=4")),
+        (f("3 SHOW 3"), f("3 ERR STATE no patterns loaded: LOAD first")),
+        (f("4 STATUS"), f("4 OK state=idle i=-1 n=0 len=0 k=0 triggers=0 missed=0 last=-1 t_us=5000")),
+        (f("5 LOAD 4 0 0,1,2,3"), f("5 OK n=4 len=4")),
+        (f("6 SHOW 3"), f("6 OK i=3 t_us=6000 n=1")),  # a new number: the refusal of 3 is in the cache
+    ]
+    with expected_protocol(script) as (proj, _t):
+        proj.load(PATTERNS)
+        assert proj.show(3).device_time_us == 6000
+    assert proj.stats.reboots == 1 and proj.stats.failed == 0
