@@ -31,13 +31,25 @@ from reconstruction.rigmodel import UNLABELLED, RigModel
 
 @dataclass(frozen=True)
 class LabelOptions:
-    """depth_min_mm, depth_max_mm: working volume (camera-frame z). min_inside_fraction: share of a
-    component's junctions that must triangulate inside it. residual_cap_px: residuals are capped here
-    (robust score). noise_floor_px: smallest junction noise assumed by the ambiguity test. ambiguity_chi2:
-    the best offset must beat the runner-up by this much (M·Δscore/σ²). candidate_band_px: offsets are
-    proposed by pattern junctions this close to a reference junction's epipolar line. max_residual_px:
-    an accepted component's junctions farther than this from their epipolar line are left out.
-    min_component: components with fewer junctions are left out."""
+    """Options of the default labeller (docs/reconstruction.md, "Default labeller").
+
+    depth_min_mm, depth_max_mm: working volume (camera-frame z); the pipeline sets them from its own options.
+    min_inside_fraction: share of a component's junctions that must triangulate inside it for an offset to
+        be admissible; afterwards every labelled junction must be inside it on its own.
+    residual_cap_px: residuals are capped here in the offset score (robust to a few bad junctions).
+    noise_floor_px: smallest junction noise (projector px RMS) the ambiguity test assumes.
+    ambiguity_chi2: the best offset must beat the runner-up by M·(s2 − s1)/σ² ≥ this (log-likelihood ratio × 2).
+    min_rms_ratio: and its RMS residual must be this many times smaller than the runner-up's (σ floored):
+        systematic calibration error shifts every junction alike and is not noise.
+    candidate_band_px: offsets are proposed by pattern junctions this close to a reference junction's
+        epipolar line. candidate_refs: how many reference junctions per component.
+    outlier_sigma, max_residual_px: after the offset is chosen, a junction farther from its epipolar line
+        than max(outlier_sigma·σ̂, max_residual_px) (σ̂: the component's robust residual scale) is an outlier:
+        its edges are cut and what they joined is labelled again on its own (a bad edge joins two surfaces).
+    min_split_component: pieces split off as outliers need this many junctions to be labelled again.
+    max_split_rounds: how often a component may be split.
+    min_component: components with fewer junctions are left out.
+    """
 
     depth_min_mm: float = 100.0
     depth_max_mm: float = 10000.0
@@ -45,9 +57,25 @@ class LabelOptions:
     residual_cap_px: float = 3.0
     noise_floor_px: float = 0.15
     ambiguity_chi2: float = 25.0
+    min_rms_ratio: float = 1.5
     candidate_band_px: float = 4.0
-    max_residual_px: float = 3.0
+    candidate_refs: int = 5
+    outlier_sigma: float = 6.0
+    max_residual_px: float = 0.75
+    min_split_component: int = 3
+    max_split_rounds: int = 3
     min_component: int = 1
+
+
+#: reasons a junction is left out by the default labeller (keys of stats["junctions_left_out"])
+LEFT_OUT_REASONS = (
+    "ambiguous",
+    "no_admissible_offset",
+    "component_too_small",
+    "residual_too_large",
+    "out_of_depth_range",
+    "split_too_small",
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,26 +89,39 @@ class Labels:
     stats: dict = field(default_factory=dict)
 
 
-def relative_labels(n_junctions: int, edges: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Integer labels relative to one root per connected component, from the graph edges.
+def clean_edges(n_junctions: int, edges: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Remove the edges that contradict the labels propagated along a spanning tree (twice).
 
-    edges (E, 2) junction ids a → b; delta (E, 2) the (i, j) change from a to b. Edges that contradict
-    the labels propagated along a spanning tree are removed and the components recomputed (once).
-    Returns rel (M, 2), component (M,), number of contradicting edges removed.
+    edges (E, 2) junction ids a → b; delta (E, 2) the (i, j) change from a to b. Every edge touching an
+    endpoint of a contradicting edge is dropped (cheap and conservative). Returns the kept edges, their
+    deltas and the number removed.
     """
+    edges = np.asarray(edges, np.int64).reshape(-1, 2)
+    delta = np.asarray(delta, np.int64).reshape(-1, 2)
     removed = 0
     for _ in range(2):
-        rel, comp = _propagate(n_junctions, edges, delta)
         if len(edges) == 0:
             break
+        rel, _ = _propagate(n_junctions, edges, delta)
         bad = np.any(rel[edges[:, 1]] - rel[edges[:, 0]] != delta, axis=1)
         if not bad.any():
             break
-        # Drop every edge that touches a contradiction's endpoints (cheap and conservative).
         nodes = np.unique(edges[bad].ravel())
         touch = np.isin(edges[:, 0], nodes) | np.isin(edges[:, 1], nodes)
         removed += int(touch.sum())
         edges, delta = edges[~touch], delta[~touch]
+    return edges, delta, removed
+
+
+def relative_labels(n_junctions: int, edges: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Integer labels relative to one root per connected component, from the graph edges.
+
+    edges (E, 2) junction ids a → b; delta (E, 2) the (i, j) change from a to b. Edges that contradict
+    the labels propagated along a spanning tree are removed first (`clean_edges`).
+    Returns rel (M, 2), component (M,), number of contradicting edges removed.
+    """
+    edges, delta, removed = clean_edges(n_junctions, edges, delta)
+    rel, comp = _propagate(n_junctions, edges, delta)
     return rel, comp, removed
 
 
@@ -117,105 +158,162 @@ def _epipolar_residual_px(model: RigModel, lines: np.ndarray, i: np.ndarray, j: 
     return np.abs(lines[..., 0] * xy[..., 0] + lines[..., 1] * xy[..., 1] + lines[..., 2]) * model.fx_proj
 
 
+def _groups(comp: np.ndarray) -> list[np.ndarray]:
+    """Member index arrays of each component id in `comp` (ids in any order)."""
+    order = np.argsort(comp, kind="stable")
+    bounds = np.flatnonzero(np.diff(np.concatenate([[-1], comp[order], [-2]])))
+    return [order[bounds[k] : bounds[k + 1]] for k in range(len(bounds) - 1)]
+
+
+@dataclass
+class _Choice:
+    """The outcome of scoring one component's offsets."""
+
+    reason: str | None  # None: accepted; else a LEFT_OUT_REASONS key
+    labels: np.ndarray | None = None  # (m, 2)
+    residual: np.ndarray | None = None  # (m,) projector px
+    inside: np.ndarray | None = None  # (m,) bool, inside the depth range
+    rms: tuple[float, float] = (float("nan"), float("nan"))  # best, runner-up
+
+
+def _choose_offset(model: RigModel, rel: np.ndarray, ln: np.ndarray, xy_cam: np.ndarray, options: LabelOptions, stats: dict) -> _Choice:
+    """Score every admissible integer offset of one component (relative labels rel (m, 2), epipolar lines
+    ln (m, 3), normalised camera points xy_cam (m, 2)) and apply the range and ambiguity tests."""
+    m = len(rel)
+    ok_line = np.isfinite(ln).all(axis=1)
+    if not ok_line.any():
+        return _Choice("no_admissible_offset")
+    L = model.index_max - model.index_min + 1
+    cap2 = options.residual_cap_px**2
+    # Admissible offsets keep every label inside the pattern.
+    lo_i = model.index_min - rel[:, 0].min()
+    hi_i = model.index_max - rel[:, 0].max()
+    lo_j = model.index_min - rel[:, 1].min()
+    hi_j = model.index_max - rel[:, 1].max()
+    if lo_i > hi_i or lo_j > hi_j:
+        stats["out_of_pattern"] += 1
+        return _Choice("no_admissible_offset")
+    # Candidate offsets: pattern junctions near the epipolar lines of a few reference junctions.
+    refs = np.flatnonzero(ok_line)
+    refs = np.unique(refs[np.linspace(0, len(refs) - 1, min(options.candidate_refs, len(refs))).astype(int)])
+    cands: set[tuple[int, int]] = set()
+    xy_all = model.xy_junction.reshape(-1, 2)
+    for r in refs.tolist():
+        d = np.abs(xy_all @ ln[r, :2] + ln[r, 2]) * model.fx_proj
+        near = np.flatnonzero(d <= options.candidate_band_px)
+        I = near // L + model.index_min - rel[r, 0]
+        J = near % L + model.index_min - rel[r, 1]
+        inside = (I >= lo_i) & (I <= hi_i) & (J >= lo_j) & (J <= hi_j)
+        cands.update(zip(I[inside].tolist(), J[inside].tolist()))
+    if not cands:
+        stats["out_of_pattern"] += 1
+        return _Choice("no_admissible_offset")
+    off = np.array(sorted(cands), np.int64)  # (C, 2)
+    ii = rel[None, :, 0] + off[:, None, 0]
+    jj = rel[None, :, 1] + off[:, None, 1]
+    res = _epipolar_residual_px(model, ln[None, ok_line], ii[:, ok_line], jj[:, ok_line])
+    score = np.minimum(res * res, cap2).mean(axis=1)
+    ranked = np.argsort(score, kind="stable")
+    # Walk the ranking: the first two offsets that put the surface inside the working volume.
+    passing: list[tuple[int, np.ndarray]] = []
+    for c in ranked[: min(len(ranked), 16)].tolist():
+        xy_p = model.junction_xy(ii[c], jj[c])
+        p, _ = triangulate_rays(model.procam, xy_cam, xy_p)
+        z = depth_cam(model.procam, p)
+        inside = (z >= options.depth_min_mm) & (z <= options.depth_max_mm)
+        if inside.mean() >= options.min_inside_fraction:
+            passing.append((c, inside))
+            if len(passing) == 2:
+                break
+        elif not passing:
+            stats["out_of_depth_range"] += 1
+    if not passing:
+        return _Choice("no_admissible_offset")
+    best, inside = passing[0]
+    s1 = float(score[best])
+    s2 = float(score[passing[1][0]]) if len(passing) > 1 else cap2
+    n_eff = int(ok_line.sum())
+    sigma2 = max(s1, options.noise_floor_px**2)
+    rms = (float(np.sqrt(s1)), float(np.sqrt(s2)))
+    if n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2 or s2 < options.min_rms_ratio**2 * sigma2:
+        return _Choice("ambiguous", rms=rms)
+    lab = np.column_stack([ii[best], jj[best]])
+    r_full = _epipolar_residual_px(model, ln, lab[:, 0], lab[:, 1])
+    return _Choice(None, lab, r_full, inside, rms)
+
+
 def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *, options: LabelOptions = LabelOptions()) -> Labels:
-    """The default labeller: one offset per connected component (module doc). xy_cam: (M, 2) normalised
-    camera coordinates of obs.q_junction."""
+    """The default labeller: one offset per connected component, split at outliers (module doc).
+
+    xy_cam: (M, 2) normalised camera coordinates of obs.q_junction. stats["junctions_left_out"] counts the
+    junctions left out by reason (LEFT_OUT_REASONS); stats["components_split"] the components cut at
+    outlier junctions.
+    """
     M = len(obs.q_junction)
     labels = np.full((M, 2), UNLABELLED, np.int64)
     residual = np.full(M, np.nan)
-    stats = {"components": 0, "components_labelled": 0, "ambiguous": 0, "out_of_pattern": 0,
-             "out_of_depth_range": 0, "too_small": 0, "junctions_left_out": {}, "contradicting_edges": 0}
-    left = {"ambiguous": 0, "no_admissible_offset": 0, "component_too_small": 0, "residual_too_large": 0}
+    stats = {"components": 0, "components_labelled": 0, "ambiguous": 0, "out_of_pattern": 0, "out_of_depth_range": 0,
+             "too_small": 0, "components_split": 0, "contradicting_edges": 0, "junctions_left_out": {}}
+    left = dict.fromkeys(LEFT_OUT_REASONS, 0)
     if M == 0:
         stats["junctions_left_out"] = left
         return Labels(labels, residual, np.zeros(0, np.int64), stats)
-    rel, comp, removed = relative_labels(M, obs.edges, obs.edge_delta)
+    edges, delta, removed = clean_edges(M, obs.edges, obs.edge_delta)
     stats["contradicting_edges"] = removed
+    rel, comp = _propagate(M, edges, delta)
     lines = epipolar_lines(model.procam, xy_cam)
-    L = model.index_max - model.index_min + 1
-    cap2 = options.residual_cap_px**2
-    # Components, largest first.
-    order = np.argsort(comp, kind="stable")
-    bounds = np.flatnonzero(np.diff(np.concatenate([[-1], comp[order], [-2]])))
-    groups = [order[bounds[k] : bounds[k + 1]] for k in range(len(bounds) - 1)]
+    component = comp.copy()
+    next_id = int(comp.max()) + 1 if M else 0
+    groups = _groups(comp)
     stats["components"] = len(groups)
-    for members in groups:
+    # Work list: (members, split round). Pieces split off are relabelled on their own.
+    work = [(g, 0) for g in groups]
+    while work:
+        members, rounds = work.pop()
         m = len(members)
-        if m < options.min_component:
+        if rounds == 0 and m < options.min_component:
             left["component_too_small"] += m
             stats["too_small"] += 1
             continue
-        a = rel[members]
-        ln = lines[members]
-        ok_line = np.isfinite(ln).all(axis=1)
-        if not ok_line.any():
-            left["no_admissible_offset"] += m
+        if rounds > 0 and m < options.min_split_component:
+            left["split_too_small"] += m
             continue
-        # Admissible offsets keep every label inside the pattern.
-        lo_i = model.index_min - a[:, 0].min()
-        hi_i = model.index_max - a[:, 0].max()
-        lo_j = model.index_min - a[:, 1].min()
-        hi_j = model.index_max - a[:, 1].max()
-        if lo_i > hi_i or lo_j > hi_j:
-            left["no_admissible_offset"] += m
-            stats["out_of_pattern"] += 1
+        ch = _choose_offset(model, rel[members], lines[members], xy_cam[members], options, stats)
+        if ch.reason is not None:
+            left[ch.reason] += m
+            if ch.reason == "ambiguous":
+                stats["ambiguous"] += 1
             continue
-        # Candidate offsets: pattern junctions near the epipolar lines of a few reference junctions.
-        refs = np.flatnonzero(ok_line)
-        refs = refs[np.linspace(0, len(refs) - 1, min(3, len(refs))).astype(int)]
-        cands = set()
-        xy_all = model.xy_junction.reshape(-1, 2)
-        for r in refs:
-            d = np.abs(xy_all @ ln[r, :2] + ln[r, 2]) * model.fx_proj
-            near = np.flatnonzero(d <= options.candidate_band_px)
-            I = near // L + model.index_min - a[r, 0]
-            J = near % L + model.index_min - a[r, 1]
-            inside = (I >= lo_i) & (I <= hi_i) & (J >= lo_j) & (J <= hi_j)
-            cands.update(zip(I[inside].tolist(), J[inside].tolist()))
-        if not cands:
-            left["no_admissible_offset"] += m
-            stats["out_of_pattern"] += 1
-            continue
-        off = np.array(sorted(cands), np.int64)  # (C, 2)
-        ii = a[None, :, 0] + off[:, None, 0]
-        jj = a[None, :, 1] + off[:, None, 1]
-        res = _epipolar_residual_px(model, ln[None, ok_line], ii[:, ok_line], jj[:, ok_line])
-        score = np.minimum(res * res, cap2).mean(axis=1)
-        ranked = np.argsort(score)
-        # Walk the ranking: the first two offsets that put the surface inside the working volume.
-        passing = []
-        for c in ranked[: min(len(ranked), 12)]:
-            xy_p = model.junction_xy(ii[c], jj[c])
-            p, _ = triangulate_rays(model.procam, xy_cam[members], xy_p)
-            z = depth_cam(model.procam, p)
-            inside = (z >= options.depth_min_mm) & (z <= options.depth_max_mm)
-            if inside.mean() >= options.min_inside_fraction:
-                passing.append(c)
-                if len(passing) == 2:
-                    break
-            elif not passing:
-                stats["out_of_depth_range"] += 1
-        if not passing:
-            left["no_admissible_offset"] += m
-            continue
-        best = passing[0]
-        s1 = float(score[best])
-        s2 = float(score[passing[1]]) if len(passing) > 1 else cap2
-        n_eff = int(ok_line.sum())
-        sigma2 = max(s1, options.noise_floor_px**2)
-        if n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2:
-            left["ambiguous"] += m
-            stats["ambiguous"] += 1
-            continue
-        lab = np.column_stack([ii[best], jj[best]])
-        r_full = _epipolar_residual_px(model, ln, lab[:, 0], lab[:, 1])
-        good = np.isfinite(r_full) & (r_full <= options.max_residual_px)
-        left["residual_too_large"] += int((~good).sum())
-        labels[members[good]] = lab[good]
-        residual[members[good]] = r_full[good]
+        r = ch.residual
+        fin = np.isfinite(r)
+        # Robust residual scale (half-normal: median |r| = 0.674 σ) and the outlier limit.
+        sigma_hat = 1.4826 * float(np.median(r[fin])) if fin.any() else np.inf
+        limit = max(options.outlier_sigma * sigma_hat, options.max_residual_px)
+        bad = ~fin | (r > limit) | ~ch.inside
+        good = ~bad
+        labels[members[good]] = ch.labels[good]
+        residual[members[good]] = r[good]
         stats["components_labelled"] += 1
+        if not bad.any():
+            continue
+        # Outliers: cut their edges to the inliers; what they hold together is labelled again on its own.
+        outl = members[bad]
+        if rounds >= options.max_split_rounds:
+            left["residual_too_large"] += int((bad & ch.inside).sum())
+            left["out_of_depth_range"] += int((bad & ~ch.inside).sum())
+            continue
+        stats["components_split"] += 1
+        sel = np.isin(edges[:, 0], outl) & np.isin(edges[:, 1], outl)
+        idx = {int(v): k for k, v in enumerate(outl.tolist())}
+        sub_e = np.array([[idx[int(a)], idx[int(b)]] for a, b in edges[sel].tolist()], np.int64).reshape(-1, 2)
+        sub_rel, sub_comp = _propagate(len(outl), sub_e, delta[sel])
+        rel[outl] = sub_rel
+        for g in _groups(sub_comp):
+            component[outl[g]] = next_id
+            next_id += 1
+            work.append((outl[g], rounds + 1))
     stats["junctions_left_out"] = left
-    return Labels(labels, residual, comp, stats)
+    return Labels(labels, residual, component, stats)
 
 
 def solve_base_point(m: np.ndarray, b: np.ndarray, h: np.ndarray, v: np.ndarray) -> np.ndarray:
