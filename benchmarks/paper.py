@@ -43,9 +43,14 @@ def sample_bilinear(a: np.ndarray, q: np.ndarray) -> np.ndarray:
     """a (H, W[, C]) sampled at sub-pixel camera positions q (N, 2) (u, v): (N, C); NaN outside or where a is NaN."""
     if len(q) == 0:
         return np.zeros((0, a.shape[2] if a.ndim == 3 else 1))
-    m = np.asarray(q, np.float32).reshape(-1, 1, 2)
+    # OpenCV's remap takes maps of fewer than 32767 rows: lay the points out 1024 to a row.
+    n = len(q)
+    rows = -(-n // 1024)
+    m = np.full((rows * 1024, 2), -10.0, np.float32)
+    m[:n] = q
+    m = m.reshape(rows, 1024, 2)
     out = cv2.remap(np.asarray(a, np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderValue=np.nan)
-    return out.reshape(len(q), -1).astype(np.float64)
+    return out.reshape(rows * 1024, -1)[:n].astype(np.float64)
 
 
 def relative_errors(points_proj: np.ndarray, q_cam: np.ndarray, truth) -> np.ndarray:
