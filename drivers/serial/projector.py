@@ -676,7 +676,7 @@ class SerialProjector:
                 raise cls(f"trigger board on {self.port} refused {verb}: ERR {reply.code} {reply.text}".rstrip())
             prefix = b"\n"  # end whatever partial line the board may hold before resending
             if outcome == "reboot" and recover:
-                self._restore_quietly(verb)
+                self._restore_quietly(verb, seq)
             elif outcome == "busy":
                 time.sleep(min(self.timeout_s / 10, 0.02))
             if outcome != "down" and budget > 0:
@@ -693,7 +693,7 @@ class SerialProjector:
                 )
             reconnects += 1
             try:
-                self._reconnect(problem)
+                self._reconnect(problem, pending_seq=seq)
             except DeviceError:
                 self.stats.failed += 1
                 raise
@@ -710,12 +710,17 @@ class SerialProjector:
         self._restore()
         return True
 
-    def _restore_quietly(self, verb: str) -> None:
-        """The board rebooted while a request was pending: restore its state before the resend."""
+    def _restore_quietly(self, verb: str, seq: int) -> None:
+        """A boot banner came while a request was pending: restore the board's state before the resend,
+        unless STATUS shows the board still holds the reply to this very request (a late banner)."""
         try:
+            status = self._status(recover=False)
+            if status.get("last") == seq and status.get("n", 0) == self._n:
+                self._rebooted = False
+                return
             self._restore()
-        except _LinkDown as e:  # handled by the reconnect that follows
-            raise DeviceError(f"trigger board on {self.port} rebooted during {verb} and the link failed: {e}") from e
+        except DeviceTimeout:
+            pass  # the link failed too: the resend finds out and reconnects, which reconciles again
 
     def _await(self, seq: int, verb: str, deadline: float) -> tuple[str, P.Reply | None, str]:
         """Wait for the reply to `seq`: ("ok"|"err", reply, "") or ("timeout"|"garbled"|"busy"|"reboot", None, why)."""
@@ -745,7 +750,7 @@ class SerialProjector:
                 return "busy", None, f"the board was busy ({item.text})"
             return "err", item, ""
 
-    def _reconnect(self, problem: str) -> None:
+    def _reconnect(self, problem: str, *, pending_seq: int | None = None) -> None:
         """Reopen (if we can), handshake, read STATUS, reconcile; several attempts within a deadline
         (a second fault may strike the handshake itself). Raises DeviceError naming `problem`."""
         self.stats.reconnects += 1
@@ -763,7 +768,11 @@ class SerialProjector:
                 reply = self._request("HELLO", P.PROTOCOL_VERSION, lead=True, recover=False)
                 self._take_hello(reply)
                 status = self._status(recover=False)
-                if self._rebooted or status.get("n", 0) != self._n:
+                if pending_seq is not None and status.get("last") == pending_seq and status.get("n", 0) == self._n:
+                    # The board holds the reply to the pending request: it has not rebooted since executing
+                    # it, and a restore now would overwrite that cached reply (and trigger twice).
+                    self._rebooted = False
+                elif self._rebooted or status.get("n", 0) != self._n:
                     self._restore()
                 return
             except (DeviceTimeout, _LinkDown, OSError) as e:
