@@ -54,9 +54,8 @@ def run_cell(faults: EmulatorFaults, *, shows: int, seed: int) -> dict:
             proj.close()
             if proj.close_error is not None:
                 first_error = first_error or f"close: {proj.close_error}"
-    shows_run = [(b.split()[0], boot) for b, boot in zip(em.executed, em.executed_boot) if b.split()[1] == "SHOW"]
-    executed = collections.Counter(seq for seq, _boot in shows_run)
-    same_boot = collections.Counter(shows_run)
+    executed = collections.Counter(seq for _boot, seq in em.fired)  # SHOWs that fired the camera trigger
+    same_boot = collections.Counter(em.fired)
     s = proj.stats
     return {
         "shows": requested,
@@ -120,9 +119,9 @@ def main(argv: list[str] | None = None) -> int:
         "",
         "Columns: *sent* requests issued; *resent* resends of a request with its own sequence number; "
         "*recovered* requests that succeeded after a resend; *failed* requests given up; *reconnects*; "
-        "*reboots* seen; *injected* faults the emulator injected; *double* `SHOW`s the board executed twice "
+        "*reboots* seen; *injected* faults the emulator injected; *double* `SHOW` requests that fired the trigger twice "
         "within one boot (a lost acknowledgement must never cause a second trigger: must be 0); *across reboot* "
-        "`SHOW`s executed, then the board rebooted before the host had the acknowledgement, and executed again "
+        "`SHOW` requests that fired, then the board rebooted before the host had the acknowledgement, and fired again "
         "when the host resent it (the reboot erased the reply cache; see docs/decisions/0021-serial-host-recovery.md).",
         "",
         "| fault | rate | shows ok | sent | resent | recovered | failed | reconnects | reboots | injected | double | across reboot | time (s) |",

@@ -83,7 +83,8 @@ class Emulator:
 
     clock: host seconds (monotonic); the device time t_us counts µs since the last boot. Counters for tests
     and benchmarks: `triggers` (camera pulses fired since boot), `executed` (bodies of requests executed,
-    not answered from the cache), `cache_hits`, `fault_counts` (faults injected, by kind), `boots`.
+    not answered from the cache, refusals included), `fired` ((boot, SEQ) of each SHOW that triggered),
+    `cache_hits`, `fault_counts` (faults injected, by kind), `boots`.
     """
 
     def __init__(
@@ -107,6 +108,7 @@ class Emulator:
         self.fault_counts = {k: 0 for k in EmulatorFaults.KINDS}
         self.executed: list[str] = []
         self.executed_boot: list[int] = []  # the boot number (`boots`) each entry of `executed` ran in
+        self.fired: list[tuple[int, int]] = []  # (boot number, request SEQ) of every SHOW that fired the trigger
         self.cache_hits = 0
         self.boots = 0
         self._out: list[tuple[float, bytes]] = []  # FIFO of (due host time, bytes)
@@ -409,6 +411,7 @@ class Emulator:
             self._busy_until = t_trig + self.params["pulse_us"] * 1e-6
             self.shown, self.state = i, "showing"
             self.triggers += 1
+            self.fired.append((self.boots, seq))
             return P.ok_body(seq, i=i, t_us=self.t_us(t_trig), n=self.triggers), self._busy_until
         if v == "LOAD":
             if not nargs(3, 3) or as_int(a[0]) is None or as_int(a[1]) is None:

@@ -15,8 +15,8 @@ PATTERNS = [np.full((2, 3), k, np.uint8) for k in range(4)]
 
 
 def shows_executed(em: Emulator) -> collections.Counter:
-    """How many times the board executed each SHOW request (by its sequence number)."""
-    return collections.Counter(b.split()[0] for b in em.executed if b.split()[1] == "SHOW")
+    """How many times the board fired the trigger for each SHOW request (by its sequence number)."""
+    return collections.Counter(seq for _boot, seq in em.fired)
 
 
 def test_a_session_over_a_pseudo_terminal():
