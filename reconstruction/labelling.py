@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import breadth_first_order, connected_components
+from scipy.sparse.csgraph import breadth_first_order, connected_components, dijkstra
+from scipy.spatial import cKDTree
 
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import depth_cam, epipolar_lines, paper_epipolar_mb, triangulate_rays
@@ -417,3 +418,236 @@ def label_paper(obs: GridObservation, model: RigModel, xy_cam: np.ndarray) -> La
     residual[lab] = _epipolar_residual_px(model, lines, labels[lab, 0], labels[lab, 1])
     stats["junctions_left_out"] = {"not_in_a_triangle": int((~lab).sum())}
     return Labels(labels, residual, np.full(M, -1, np.int64), stats)
+
+
+# --- line samples ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TraceOptions:
+    """How line samples inherit the index of their line from labelled junctions (docs/reconstruction.md,
+    "Line samples").
+
+    mix_sigma: samples closer than this many smoothing scales σ to a sample of the other family are
+        dropped: there the two lines' profiles overlap and the ridge is pulled towards the crossing.
+    link_px: samples of one family closer than this are neighbours on a trace.
+    lateral_px: linked samples may be at most this far apart across the line. Along one light plane the
+        depth is a function of the image position across the line (∂z/∂n, see the doc), so a trace that
+        jumps across a depth edge jumps sideways in the image: this is the depth-continuity test.
+    direction_px: radius of the neighbourhood whose principal axis gives a sample's line direction.
+    max_turn_deg: linked samples' directions may differ by at most this: a line on a smooth surface bends
+        gently, a ridge that runs off along a shadow or occlusion edge (half a line cut off) turns sharply.
+    bridge_gaps, bridge_lateral_px, bridge_min_samples: if bridge_gaps, trace pieces of at least bridge_min_samples samples are joined
+        across a crossing's gap (2·mix_sigma·σ + 2·link_px at most) when each end lies within
+        bridge_lateral_px of the other piece's line. Off by default: on the tabletop rig a bridge can
+        join a line to another one that continues it across a depth edge (bench_reconstruction, --bridge).
+    seed_lateral_px: a sample near a labelled junction takes the junction's index for its family only if
+        it lies this close to the junction's fitted line of that family.
+    """
+
+    mix_sigma: float = 2.0
+    link_px: float = 1.6
+    lateral_px: float = 0.5
+    direction_px: float = 3.0
+    max_turn_deg: float = 10.0
+    seed_lateral_px: float = 1.0
+    bridge_gaps: bool = False
+    bridge_lateral_px: float = 0.4
+    bridge_min_samples: int = 4
+
+
+@dataclass(frozen=True, eq=False)
+class SampleLabels:
+    """index (P,) float: the line index of each sample in its own family (NaN: none); stats: counts."""
+
+    index: np.ndarray
+    stats: dict = field(default_factory=dict)
+
+
+def _sample_directions(q: np.ndarray, family: np.ndarray, radius: float) -> np.ndarray:
+    """Unit line directions (P, 2): principal axis of the same-family samples within `radius`."""
+    P = len(q)
+    out = np.zeros((P, 2))
+    for f in np.unique(family).tolist():
+        sel = np.flatnonzero(family == f)
+        if len(sel) == 0:
+            continue
+        tree = cKDTree(q[sel])
+        pairs = tree.query_pairs(radius, output_type="ndarray")
+        a = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(len(sel))])
+        b = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(len(sel))])
+        d = q[sel][b] - q[sel][a]
+        n = len(sel)
+        sxx = np.bincount(a, weights=d[:, 0] * d[:, 0], minlength=n)
+        syy = np.bincount(a, weights=d[:, 1] * d[:, 1], minlength=n)
+        sxy = np.bincount(a, weights=d[:, 0] * d[:, 1], minlength=n)
+        th = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+        out[sel] = np.column_stack([np.cos(th), np.sin(th)])
+    return out
+
+
+def _bridge_pieces(q: np.ndarray, direction: np.ndarray, comp: np.ndarray, ncomp: int, *, gap_px: float, options: "TraceOptions") -> np.ndarray:
+    """Links (B, 2) between the end samples of trace pieces that continue each other across a gap of at
+    most gap_px: the second end lies ahead of the first along the piece's direction, within
+    `bridge_lateral_px` of both pieces' lines, and the pieces are parallel within `max_turn_deg`."""
+    cnt = np.bincount(comp, minlength=ncomp)
+    big = cnt >= options.bridge_min_samples
+    if big.sum() < 2:
+        return np.zeros((0, 2), np.int64)
+    # Piece direction: mean doubled angle of its samples' directions; centre: mean position.
+    ang2 = 2 * np.arctan2(direction[:, 1], direction[:, 0])
+    th = 0.5 * np.arctan2(np.bincount(comp, np.sin(ang2), ncomp), np.bincount(comp, np.cos(ang2), ncomp))
+    pdir = np.column_stack([np.cos(th), np.sin(th)])
+    cen = np.column_stack([np.bincount(comp, q[:, 0], ncomp), np.bincount(comp, q[:, 1], ncomp)]) / np.maximum(cnt, 1)[:, None]
+    t = np.einsum("ij,ij->i", q - cen[comp], pdir[comp])
+    order = np.lexsort((t, comp))
+    first = np.searchsorted(comp[order], np.arange(ncomp), side="left")
+    last = np.searchsorted(comp[order], np.arange(ncomp), side="right") - 1
+    ids = np.flatnonzero(big)
+    ends = np.concatenate([order[first[ids]], order[last[ids]]])  # sample ids of piece ends
+    out_dir = np.concatenate([-pdir[ids], pdir[ids]])  # pointing out of the piece
+    if len(ends) < 2:
+        return np.zeros((0, 2), np.int64)
+    pairs = cKDTree(q[ends]).query_pairs(gap_px, output_type="ndarray")
+    if len(pairs) == 0:
+        return np.zeros((0, 2), np.int64)
+    a, b = pairs[:, 0], pairs[:, 1]
+    ea, eb = ends[a], ends[b]
+    d = q[eb] - q[ea]
+    dist = np.linalg.norm(d, axis=1)
+    u = d / np.maximum(dist, 1e-9)[:, None]
+    da, db = out_dir[a], out_dir[b]
+    lat_a = np.abs(d[:, 0] * da[:, 1] - d[:, 1] * da[:, 0])
+    lat_b = np.abs(d[:, 0] * db[:, 1] - d[:, 1] * db[:, 0])
+    ok = (
+        (comp[ea] != comp[eb])
+        & (np.einsum("ij,ij->i", u, da) > 0.9)  # b ahead of a's end
+        & (np.einsum("ij,ij->i", -u, db) > 0.9)  # and a ahead of b's end
+        & (-np.einsum("ij,ij->i", da, db) >= np.cos(np.deg2rad(options.max_turn_deg)))
+        & (np.maximum(lat_a, lat_b) <= options.bridge_lateral_px)
+    )
+    return np.column_stack([ea[ok], eb[ok]]).astype(np.int64)
+
+
+def label_samples(
+    obs: GridObservation,
+    junction_labels: np.ndarray,
+    *,
+    sigma_px: float,
+    seed_radius_px: float,
+    options: TraceOptions = TraceOptions(),
+) -> SampleLabels:
+    """Give every line sample the index of its line, following the visible trace of the line from the
+    labelled junctions on it.
+
+    Samples of one family are linked into traces (neighbours within `link_px`, along the local line
+    direction, with no sideways jump larger than `lateral_px`); samples near a labelled junction, on the
+    junction's fitted line, are seeds carrying the junction's index; every sample takes the index of the
+    nearest seed along its trace (graph distance). A trace therefore runs from a labelled junction through
+    unlabelled crossings' gaps only where its samples stay linked, out to the image border, a shadow or an
+    occlusion. Traces whose seeds disagree (two lines joined, or a wrong junction label) are split between
+    the seeds; samples on traces without seeds stay unlabelled (never guessed).
+
+    junction_labels (M, 2) int, UNLABELLED where none. sigma_px: the extraction's smoothing scale.
+    seed_radius_px: how far from a junction its seeds may lie (camera px).
+    """
+    q = np.asarray(obs.q, np.float64)
+    fam = np.asarray(obs.family).astype(np.int64)
+    P = len(q)
+    index = np.full(P, np.nan)
+    stats = {"samples": P, "mixing_zone": 0, "seeds": 0, "seed_conflicts": 0, "traces": 0, "traces_seeded": 0,
+             "traces_conflicting": 0, "samples_labelled": 0, "samples_unseeded": 0}
+    if P == 0:
+        return SampleLabels(index, stats)
+    # 1. The mixing zone around crossings.
+    keep = np.ones(P, bool)
+    r_mix = options.mix_sigma * sigma_px
+    for f in (1, 2):
+        a = fam == f
+        b = (fam != f) & (fam > 0)
+        if a.any() and b.any():
+            dn, _ = cKDTree(q[b]).query(q[a], distance_upper_bound=r_mix)
+            keep[np.flatnonzero(a)[np.isfinite(dn)]] = False
+    stats["mixing_zone"] = int((~keep).sum())
+    direction = _sample_directions(q, np.where(keep, fam, 0), options.direction_px)
+    # 2. Seeds: kept samples near a labelled junction, on its fitted line of their family.
+    lab = np.asarray(junction_labels, np.int64)
+    labelled = np.flatnonzero(lab[:, 0] != UNLABELLED)
+    seed = np.full(P, UNLABELLED, np.int64)
+    if len(labelled) and keep.any():
+        kept = np.flatnonzero(keep)
+        hits = cKDTree(q[kept]).query_ball_point(obs.q_junction[labelled], r=seed_radius_px)
+        cnt = np.array([len(h) for h in hits])
+        pid = kept[np.concatenate([np.asarray(h, np.int64) for h in hits])] if cnt.sum() else np.zeros(0, np.int64)
+        jid = np.repeat(labelled, cnt)
+        f = fam[pid]
+        d = obs.junction_dir[jid, f - 1]
+        off = q[pid] - obs.q_junction[jid]
+        on_line = np.abs(off[:, 0] * d[:, 1] - off[:, 1] * d[:, 0]) <= options.seed_lateral_px
+        pid, val = pid[on_line], lab[jid[on_line], f[on_line] - 1]
+        lo = np.full(P, np.iinfo(np.int64).max)
+        hi = np.full(P, np.iinfo(np.int64).min)
+        np.minimum.at(lo, pid, val)
+        np.maximum.at(hi, pid, val)
+        one = lo == hi
+        seed[one] = lo[one]
+        stats["seed_conflicts"] = int(((lo != hi) & (lo != np.iinfo(np.int64).max)).sum())
+    stats["seeds"] = int((seed != UNLABELLED).sum())
+    # 3. Traces and propagation, per family.
+    for f in (1, 2):
+        sel = np.flatnonzero(keep & (fam == f))
+        n = len(sel)
+        if n == 0:
+            continue
+        qs = q[sel]
+        pairs = cKDTree(qs).query_pairs(options.link_px, output_type="ndarray")
+        if len(pairs):
+            d = qs[pairs[:, 1]] - qs[pairs[:, 0]]
+            t = direction[sel][pairs[:, 0]] + np.sign(np.einsum("ij,ij->i", direction[sel][pairs[:, 0]], direction[sel][pairs[:, 1]]))[:, None] * direction[sel][pairs[:, 1]]
+            t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
+            lateral = np.abs(d[:, 0] * t[:, 1] - d[:, 1] * t[:, 0])
+            along = np.abs(np.einsum("ij,ij->i", d, t))
+            turn = np.abs(np.einsum("ij,ij->i", direction[sel][pairs[:, 0]], direction[sel][pairs[:, 1]]))
+            ok = (lateral <= options.lateral_px) & (along >= lateral) & (turn >= np.cos(np.deg2rad(options.max_turn_deg)))
+            pairs = pairs[ok]
+        pairs = pairs.reshape(-1, 2)
+        g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+        ncomp, comp = connected_components(g, directed=False)
+        # Bridge the gaps the crossings leave (the mixing zone, unfound junctions): join the ends of two
+        # trace pieces that face each other across a short gap on one straight line.
+        bridges = np.zeros((0, 2), np.int64)
+        if options.bridge_gaps:
+            bridges = _bridge_pieces(qs, direction[sel], comp, ncomp, gap_px=2 * r_mix + 2 * options.link_px, options=options)
+        stats["bridges"] = stats.get("bridges", 0) + len(bridges)
+        if len(bridges):
+            pairs = np.concatenate([pairs, bridges])
+            g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+            ncomp, comp = connected_components(g, directed=False)
+        stats["traces"] += int(ncomp)
+        s_idx = seed[sel]
+        has = s_idx != UNLABELLED
+        if not has.any():
+            stats["samples_unseeded"] += n
+            continue
+        # Seeds per trace: one index, or several (then the nearest seed along the trace wins).
+        seeded = np.unique(comp[has])
+        stats["traces_seeded"] += int(len(seeded))
+        lo = np.full(ncomp, np.iinfo(np.int64).max)
+        hi = np.full(ncomp, np.iinfo(np.int64).min)
+        np.minimum.at(lo, comp[has], s_idx[has])
+        np.maximum.at(hi, comp[has], s_idx[has])
+        single = (lo == hi)[comp]
+        val = np.where(single & (lo[comp] != np.iinfo(np.int64).max), lo[comp], UNLABELLED)
+        multi = (lo != hi) & (lo != np.iinfo(np.int64).max) & (hi != np.iinfo(np.int64).min)
+        stats["traces_conflicting"] += int(multi.sum())
+        if multi.any():
+            in_multi = multi[comp]
+            src = np.flatnonzero(has & in_multi)
+            _, _, sources = dijkstra(g, directed=False, indices=src, min_only=True, return_predecessors=True)
+            reach = in_multi & (sources >= 0)
+            val[reach] = s_idx[sources[reach]]
+        got = val != UNLABELLED
+        index[sel[got]] = val[got]
+        stats["samples_unseeded"] += int((~got).sum())
+    stats["samples_labelled"] = int(np.isfinite(index).sum())
+    return SampleLabels(index, stats)

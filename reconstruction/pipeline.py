@@ -16,12 +16,13 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from calibration.errors import ReconstructionError
 from calibration.models import ProCam
-from reconstruction.extraction import ExtractOptions, GridObservation, extract_grid
-from reconstruction.geometry import depth_cam, intersect_planes, triangulate_rays
-from reconstruction.labelling import LabelOptions, Labels, label_epipolar, label_paper
+from reconstruction.extraction import ExtractOptions, GridObservation, extract_grid, sigma_for
+from reconstruction.geometry import depth_cam, triangulate_rays
+from reconstruction.labelling import LabelOptions, Labels, TraceOptions, label_epipolar, label_paper, label_samples
 from reconstruction.patterns import GridPattern
 from reconstruction.rigmodel import UNLABELLED, RigModel, rig_model
 
@@ -35,7 +36,7 @@ class ReconstructOptions:
     depth_min_mm, depth_max_mm: the working volume (camera-frame z): labels that put the surface
     outside it are rejected, and points outside it are dropped. dense: also triangulate every line sample
     (ray–light-plane), not only the junctions. extract, label: the stages' own options (label's depth
-    range is replaced by the one here)."""
+    range is replaced by the one here), trace: how line samples inherit their line's index."""
 
     labeller: Literal["epipolar", "paper"] = "epipolar"
     depth_min_mm: float = 100.0
@@ -43,6 +44,7 @@ class ReconstructOptions:
     dense: bool = True
     extract: ExtractOptions = ExtractOptions()
     label: LabelOptions = LabelOptions()
+    trace: TraceOptions = TraceOptions()
 
     def __post_init__(self) -> None:
         if self.labeller not in ("epipolar", "paper"):
@@ -59,7 +61,7 @@ class Reconstruction:
     family (N,) int8: 0 = junction, 1 = i-line sample, 2 = j-line sample.
     label (N, 2) int32: (i, j) for junctions; for line samples the line's index in its family's slot and
         UNLABELLED in the other. residual (N,) float32: epipolar distance of the junction's label in
-        projector px (for samples: the larger of their segment's end junctions').
+        projector px (for samples: that of the nearest labelled junction).
     depth_cam (H, W) float32: camera-frame z in mm at the sample's nearest pixel, NaN where nothing.
     junctions_cam (M, 2) float32 and junction_labels (M, 2) int32 (UNLABELLED where none): every junction
         found. segments (S, 2, 2) float32: fitted segments between junctions (for the overlay),
@@ -152,90 +154,33 @@ def _triangulate(image, obs: GridObservation, lab: Labels, model: RigModel, xy_c
     if labelled.any():
         pj, _gap = triangulate_rays(procam, xy_cam_j[labelled], model.junction_xy(lj[:, 0], lj[:, 1]))
 
-    # Line samples: camera ray ∩ light plane of the labelled line.
+    # Line samples: each takes the index of its line along the trace from a labelled junction
+    # (labelling.label_samples), then camera ray ∩ the light sheet of that line.
     ps = np.zeros((0, 3))
     qs = np.zeros((0, 2))
     fs = np.zeros(0, np.int8)
     ls = np.zeros((0, 2), np.int64)
     rs = np.zeros(0)
+    sample_stats: dict = {}
     if options.dense and labelled.any() and len(obs.q):
-        f = obs.family.astype(np.int64)
-        idx = np.full(len(obs.q), np.nan)
-        other = np.full(len(obs.q), np.nan)
-        res = np.full(len(obs.q), np.nan)
-        lab_f = lab.labels.astype(np.float64)
-        lab_f[~labelled] = np.nan
-        # (a) samples in a junction's disk (outside its core) belong to that junction's line of their family.
-        jn = obs.junction
-        core = float(obs.stats.get("junction_core_px", 2.0))
-        in_disk = jn >= 0
-        if in_disk.any():
-            jj = jn[in_disk]
-            far = np.linalg.norm(obs.q[in_disk] - obs.q_junction[jj], axis=1) > core
-            fam = f[in_disk]
-            li = np.where(fam == 1, lab_f[jj, 0], lab_f[jj, 1])
-            lo_ = np.where(fam == 1, lab_f[jj, 1], lab_f[jj, 0])
-            li[~far] = np.nan
-            idx[in_disk] = li
-            other[in_disk] = lo_
-            res[in_disk] = lab.residual[jj]
-        # (b) segment samples: from the segment's end junctions (which must agree).
-        seg = obs.segment
-        S = len(obs.segment_family)
-        if S:
-            ends = obs.segment_ends
-            sf = obs.segment_family.astype(np.int64)
-            la = np.where(ends[:, 0] >= 0, 1, 0)
-            lab_e = np.full((S, 2, 2), np.nan)
-            for k in (0, 1):
-                e = ends[:, k]
-                ok = e >= 0
-                lab_e[ok, k] = lab_f[e[ok]]
-            col = sf - 1  # the family's own index slot
-            own = np.take_along_axis(lab_e, np.broadcast_to(col[:, None, None], (S, 2, 1)), axis=2)[..., 0]
-            oth = np.take_along_axis(lab_e, np.broadcast_to((1 - col)[:, None, None], (S, 2, 1)), axis=2)[..., 0]
-            n_lab = np.isfinite(own).sum(axis=1)
-            seg_idx = np.where(np.isfinite(own[:, 0]), own[:, 0], own[:, 1])
-            seg_oth = np.where(n_lab == 2, 0.5 * (oth[:, 0] + oth[:, 1]), np.where(np.isfinite(oth[:, 0]), oth[:, 0], oth[:, 1]))
-            agree = (n_lab < 2) | ((own[:, 0] == own[:, 1]) & (np.abs(oth[:, 0] - oth[:, 1]) == 1))
-            # A dangling segment must be collinear with its junction (else it is another line meeting it).
-            qend = np.full((S, 2), np.nan)
-            one = n_lab == 1
-            e_one = np.where(np.isfinite(own[:, 0]), ends[:, 0], ends[:, 1])
-            qend[one] = obs.q_junction[e_one[one]]
-            nrm = np.column_stack([-obs.segment_dir[:, 1], obs.segment_dir[:, 0]])
-            off = np.abs(np.einsum("ij,ij->i", qend - obs.segment_centre, nrm))
-            straight = obs.segment_rms <= options.extract.max_segment_rms_px
-            ok_seg = (n_lab >= 1) & agree & straight & ((n_lab == 2) | (off <= 3 * options.extract.max_segment_rms_px + 0.5))
-            _ = la
-            r_e = np.full((S, 2), np.nan)
-            for k in (0, 1):
-                e = ends[:, k]
-                ok = e >= 0
-                r_e[ok, k] = lab.residual[e[ok]]
-            seg_res = np.nanmax(np.where(np.isfinite(r_e), r_e, -np.inf), axis=1)
-            in_seg = seg >= 0
-            sid = seg[in_seg]
-            idx[in_seg] = np.where(ok_seg[sid], seg_idx[sid], np.nan)
-            other[in_seg] = seg_oth[sid]
-            res[in_seg] = seg_res[sid]
-        use = np.isfinite(idx) & np.isfinite(other)
+        sigma = float(obs.stats.get("sigma_px", sigma_for(model, options.extract)))
+        seed_r = float(obs.stats.get("junction_radius_px", 0.4 * model.junction_step_cam_px))
+        sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=options.trace)
+        sample_stats = sl.stats
+        use = np.isfinite(sl.index)
         if use.any():
-            fam_u = f[use]
-            idx_u = idx[use]
-            oth_u = other[use]
-            # one plane per distinct (family, index, other)
-            key = np.column_stack([fam_u, idx_u, 2 * oth_u])
-            uniq, inv = np.unique(key, axis=0, return_inverse=True)
-            normals = model.light_plane_normals(uniq[:, 0].astype(np.int64), uniq[:, 1], uniq[:, 2] / 2)
+            f_u = np.asarray(obs.family)[use].astype(np.int64)
+            idx_u = sl.index[use].astype(np.int64)
             qs = obs.q[use]
             xy = procam.camera.pixels_to_normalised(qs)
-            ps = intersect_planes(procam, xy, normals[inv.ravel()])
-            fs = fam_u.astype(np.int8)
+            ps = model.intersect_light_sheets(xy, f_u, idx_u)
+            fs = f_u.astype(np.int8)
             ls = np.full((len(qs), 2), UNLABELLED, np.int64)
-            ls[fam_u == 1, 0] = idx_u[fam_u == 1]
-            ls[fam_u == 2, 1] = idx_u[fam_u == 2]
-            rs = res[use]
+            ls[f_u == 1, 0] = idx_u[f_u == 1]
+            ls[f_u == 2, 1] = idx_u[f_u == 2]
+            # residual of a sample: that of the nearest labelled junction
+            _, near = cKDTree(obs.q_junction[labelled]).query(qs)
+            rs = lab.residual[labelled][near]
 
     points = np.concatenate([pj, ps]) if len(ps) else pj
     q_all = np.concatenate([qj, qs]) if len(qs) else qj
@@ -274,6 +219,10 @@ def _triangulate(image, obs: GridObservation, lab: Labels, model: RigModel, xy_c
         "points_dropped_out_of_range": int((~keep).sum()),
         "min_label_separation_px": float(model.min_separation_px),
         "labeller": options.labeller,
+        "samples_labelled": int(sample_stats.get("samples_labelled", 0)),
+        "samples_left_out": {k: int(sample_stats.get(k, 0)) for k in ("mixing_zone", "samples_unseeded")},
+        "traces_conflicting": int(sample_stats.get("traces_conflicting", 0)),
+        "components_split": int(lab.stats.get("components_split", 0)),
     }
     if M == 0:
         warnings.append("no usable grid in this frame (no line crossings found): check exposure, focus and that the pattern is shown")

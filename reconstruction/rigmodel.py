@@ -12,7 +12,7 @@ from functools import lru_cache
 import numpy as np
 
 from calibration.models import ProCam
-from reconstruction.geometry import epipolar_lines, triangulate_rays
+from reconstruction.geometry import epipolar_lines, intersect_planes, triangulate_rays
 from reconstruction.patterns import GridPattern
 
 #: label value of a junction or point that has no (i, j) / line index
@@ -91,24 +91,73 @@ class RigModel:
         curved, so the plane is taken through the projector rays of the line's points at other ± 1/2 (for
         a sample between two junctions, exactly the plane through both junction rays).
         """
-        family = np.asarray(family)
-        index = np.asarray(index, dtype=np.float64)
         other = np.asarray(other, dtype=np.float64)
         lo = np.clip(other - 0.5, self.index_min, self.index_max)
         hi = np.clip(other + 0.5, self.index_min, self.index_max)
         same = hi - lo < 0.25
         lo = np.where(same & (lo > self.index_min), lo - 0.5, lo)
         hi = np.where(same & ~(lo > self.index_min), hi + 0.5, hi)
-        i_a = np.where(family == 1, index, lo)
-        j_a = np.where(family == 1, lo, index)
-        i_b = np.where(family == 1, index, hi)
-        j_b = np.where(family == 1, hi, index)
+        return self._plane_through(family, index, lo, hi)
+
+    def _plane_through(self, family, index, other_a, other_b) -> np.ndarray:
+        """Normals (N, 3) of the planes through the projector rays of line (family, index) at the other
+        family's (fractional) indices other_a and other_b."""
+        family = np.asarray(family)
+        index = np.asarray(index, dtype=np.float64)
+        other_a = np.broadcast_to(np.asarray(other_a, np.float64), index.shape)
+        other_b = np.broadcast_to(np.asarray(other_b, np.float64), index.shape)
+        i_a = np.where(family == 1, index, other_a)
+        j_a = np.where(family == 1, other_a, index)
+        i_b = np.where(family == 1, index, other_b)
+        j_b = np.where(family == 1, other_b, index)
         uv = self.pattern.junction_uv(np.concatenate([i_a, i_b]), np.concatenate([j_a, j_b]))
         xy = self.procam.projector.pixels_to_normalised(uv)
         n = len(index)
         a = np.column_stack([xy[:n], np.ones(n)])
         b = np.column_stack([xy[n:], np.ones(n)])
         return np.cross(a, b)
+
+    def fractional_index(self, family: np.ndarray, uv_proj: np.ndarray) -> np.ndarray:
+        """(N,) fractional index, in `family`'s own numbering (1: i, 2: j), of the line of that family
+        through projector pixels uv_proj (N, 2) (uniform or De Bruijn spacing; clamped to the pattern)."""
+        family = np.asarray(family)
+        uv = np.asarray(uv_proj, np.float64).reshape(-1, 2)
+        x = uv[:, 0] - self.pattern.centre_px[0]
+        y = uv[:, 1] - self.pattern.centre_px[1]
+        idx = self.pattern.indices.astype(np.float64)
+        out = np.full(len(uv), np.nan)
+        for f, n in ((1, self.pattern.n1), (2, self.pattern.n2)):
+            sel = family == f
+            if sel.any():
+                out[sel] = np.interp(y[sel] - n * x[sel], self.pattern.offsets_px(f), idx)
+        return out
+
+    def intersect_light_sheets(self, xy_cam: np.ndarray, family: np.ndarray, index: np.ndarray, *, iterations: int = 2) -> np.ndarray:
+        """Points p_proj (N, 3), mm: camera rays (normalised points xy_cam (N, 2)) ∩ the light sheets of
+        lines (family (N,) 1 or 2, index (N,)).
+
+        A line is straight in projector pixels, so with projector distortion its sheet of light is slightly
+        curved. First the plane through the line's two ends; then, `iterations` times, the plane through the
+        line's points half a crossing either side of where the previous point projects (the local chord of
+        the sheet). Without projector distortion the first plane is exact. NaN where the ray misses.
+        """
+        family = np.asarray(family)
+        index = np.asarray(index, np.float64)
+        N = self._plane_through(family, index, self.index_min, self.index_max)
+        p = intersect_planes(self.procam, xy_cam, N)
+        if not self.procam.projector.has_distortion:
+            return p
+        other_family = np.where(family == 1, 2, 1)
+        for _ in range(iterations):
+            ok = np.isfinite(p).all(axis=1) & (p[:, 2] > 0)
+            if not ok.any():
+                break
+            uv = np.full((len(p), 2), np.nan)
+            uv[ok] = self.procam.projector.project(p[ok])
+            other = self.fractional_index(other_family, uv)
+            other = np.where(np.isfinite(other), other, 0.5 * (self.index_min + self.index_max))
+            p = intersect_planes(self.procam, xy_cam, self.light_plane_normals(family, index, other))
+        return p
 
 
 def _reference_depth(procam: ProCam, depth_range_mm: tuple[float, float]) -> float:
