@@ -10,16 +10,16 @@ thread. Writes benchmarks/results/bench_extraction.md.
 Truth (`truth_grid`): the simulator's q_proj (the projector pixel each camera pixel sees) turned into
 continuous line indices c_i, c_j per camera pixel; junction (i, j) is where (c_i, c_j) = (i, j), found to
 sub-pixel precision by one Newton step from the pixel that holds it. A junction counts as *visible* when it
-is an interior pattern junction (both lines cross it) and every pixel within `r_vis` of it is lit, on one
-object and free of depth jumps. An edge (neighbouring junctions on one line) is visible when both
-junctions are and the straight camera chord between them stays lit, on one object, without depth jumps,
+is an interior pattern junction (both lines cross it) and every pixel within `r_vis` of it is lit and
+free of depth jumps. An edge (neighbouring junctions on one line) is visible when both
+junctions are and the straight camera chord between them stays lit, without depth jumps,
 and on that projector line (within 0.2 pitch).
 
 Metrics: junction recall = visible truth junctions with an extracted junction within 1.5 px; precision =
 extracted junctions within 1.5 px of some truth junction (visible or not); position error = distance to
 that truth junction (median, 95th percentile); edge recall = visible truth edges that are extracted edges
 (both ends matched, same family, right index step); edge precision = extracted edges whose ends match
-truth junctions joined by a visible truth edge with that index step; line error = distance (camera px)
+truth junctions, with the right index step, and whose chord crosses no depth jump; line error = distance (camera px)
 of samples outside junction disks from their line's true centre; coverage = visible lit line-centre
 pixels with a sample within 1.5 px, and (graph coverage) with a sample attached to the graph (on an
 edge's segment or inside a kept junction's disk), which is what labelling can reach.
@@ -70,19 +70,18 @@ def line_coordinates(truth, pattern) -> np.ndarray:
     return np.stack(out, axis=-1)
 
 
-def _smooth_mask(truth, depth_jump: float = 0.01) -> np.ndarray:
-    """Pixels whose 3x3 neighbourhood is lit, on one object and free of relative depth jumps > depth_jump."""
-    H, W = truth.lit.shape
-    ok = truth.lit & np.isfinite(truth.depth_cam)
+def _smooth_mask(truth, depth_jump: float = 0.01, *, lit: bool = True) -> np.ndarray:
+    """Pixels whose 3x3 neighbourhood is lit (if `lit`) and free of depth jumps: neighbouring camera-frame
+    depths differ by at most depth_jump (relative) per pixel. (Two objects meeting without a depth jump,
+    e.g. a flat object on the table, are one continuous surface for the grid.)"""
+    ok = np.isfinite(truth.depth_cam)
+    if lit:
+        ok &= truth.lit
     z = np.where(np.isfinite(truth.depth_cam), truth.depth_cam, 0).astype(np.float32)
-    obj = truth.object_id.astype(np.float32)
     kernel = np.ones((3, 3), np.uint8)
     zmax = cv2.dilate(z, kernel)
     zmin = cv2.erode(z, kernel)
-    omax = cv2.dilate(obj, kernel)
-    omin = cv2.erode(obj, kernel)
     ok &= (zmax - zmin) <= depth_jump * np.maximum(z, 1) * 2
-    ok &= omax == omin
     ok = cv2.erode(ok.astype(np.uint8), kernel).astype(bool)
     ok[0, :] = ok[-1, :] = ok[:, 0] = ok[:, -1] = False
     return ok
@@ -145,7 +144,8 @@ def truth_grid(truth, pattern, *, r_vis: float) -> dict:
         dev = np.abs(cc[np.arange(len(edges)), :, fam_idx] - line_val[:, None])
         ok &= np.nan_to_num(dev, nan=9) <= 0.2
         edges = edges[ok.all(axis=1)]
-    return {"q": qj, "label": lab, "visible": visible, "edges": edges, "c": c, "smooth": smooth}
+    return {"q": qj, "label": lab, "visible": visible, "edges": edges, "c": c, "smooth": smooth,
+            "continuous": _smooth_mask(truth, lit=False)}
 
 
 def evaluate(obs, truth, pattern, tg: dict) -> dict:
@@ -181,9 +181,11 @@ def evaluate(obs, truth, pattern, tg: dict) -> dict:
             continue
         ta, tb = int(near[a]), int(near[b])
         step = lab[tb] - lab[ta]
-        good = (ta, tb, int(f)) in true_set and tuple(int(x) for x in step) == tuple(int(x) for x in dl)
-        ok_e.append(good)
-        if good:
+        right_step = tuple(int(x) for x in step) == tuple(int(x) for x in dl)
+        pts = qt[ta] + np.linspace(0, 1, 41)[:, None] * (qt[tb] - qt[ta])
+        no_jump = bool((_sample(tg["continuous"].astype(np.float32), pts)[:, 0] > 0.99).all())
+        ok_e.append(right_step and no_jump)
+        if right_step and (ta, tb, int(f)) in true_set:
             found_set.add((min(ta, tb), max(ta, tb)))
     out["edges_visible"] = int(len(te))
     out["edges_found"] = int(len(obs.edges))

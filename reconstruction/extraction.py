@@ -1,31 +1,39 @@
 """Grid extraction: sub-pixel line centres, the two line families, junctions and their connectivity.
 
 One camera image in, a `GridObservation` out (camera pixels, (u, v), pixel (0, 0) = centre of the
-top-left pixel). The method (docs/reconstruction.md):
+top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055–0057):
 
-1. Gaussian smoothing; candidates where the discrete Laplacian is clearly negative (a bright ridge).
-2. At candidates, the Hessian's most negative eigenvector is the line normal n; Steger's sub-pixel
-   offset t = −(∇I · n) / (nᵀ H n) moves the sample onto the ridge; pixels whose centre lies within
-   half a pixel of the ridge are kept (one sample per pixel along the line). Isotropic spots (line
-   crossings, blobs) are dropped by an anisotropy test.
+1. Smoothing with a Gaussian of σ = 0.4 × the line width the calibration predicts (one separable float32
+   filter over the image; lines wider than ~6 px are processed at half resolution after `cv2.pyrDown`).
+   Candidates: pixels where the discrete Laplacian is clearly negative (a bright ridge or crossing).
+2. At candidates only, the Hessian's most negative eigenvector is the line normal n; Steger's sub-pixel
+   offset t = −(∇I · n) / (nᵀ H n) moves the sample onto the ridge; a pixel is kept when the ridge
+   passes through its square (non-maximum suppression across the line, one sample per pixel along it).
+   Anisotropic pixels are line samples; pixels where both eigenvalues are clearly negative are crossing
+   candidates (two bright lines crossing make a blob).
 3. Each sample's line direction is compared with the two families' directions predicted from the
    calibration (`RigModel.dir_cam`): the closer one names the family.
-4. Junctions: where the (dilated) masks of both families meet. Around each, a straight line is fitted
-   to each family's samples in an annulus, and the junction is the intersection of the two fits. A
-   junction is kept only if both lines run *through* it (samples on both sides): T- and L-shapes are
-   occlusion or shadow boundaries, or the pattern's rim, and would join unrelated surfaces.
-5. Segments: samples outside every junction's disk, connected per family; a segment whose two ends touch
-   two junctions and which is straight and passes through both junctions is an edge of the graph.
+4. Junctions: the crossing candidates' local maxima (non-maximum suppression on a grid of cells), each
+   sample assigned to the nearest one (a Voronoi partition on that grid). Around each, a straight line is
+   fitted to each family's samples outside the core, outliers trimmed, and the junction is the
+   intersection of the two fits. A junction is kept only if both lines run *through* it (samples on both
+   sides): T- and L-shapes are occlusion or shadow boundaries, or the pattern's rim.
+5. Segments: samples outside the junction cores are linked to neighbours within 2 px that lie on the same
+   line (same family, parallel normals, small offset across the line) and the links' connected components
+   are the segments; kinks and gaps (depth edges, shadows) break them. A segment whose two ends reach two
+   different junctions and whose samples lie on the chord between them is an edge of the graph.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from functools import lru_cache
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from reconstruction.rigmodel import RigModel
 
@@ -36,17 +44,28 @@ class ExtractOptions:
         calibration predicts in the camera (`sigma_for`).
     threshold_sigma: a ridge must be this many noise standard deviations strong.
     min_relative_strength: and at least this fraction of the strongest ridges nearby (uneven albedo).
-    anisotropy: the second eigenvalue may be at most this fraction of the first (rejects spots).
+    anisotropy: a line sample's second eigenvalue may be at most this fraction of the first (below:
+        a spot or a crossing).
+    crossing_strength: a crossing candidate's weaker eigenvalue must reach this fraction of the strongest
+        ridges nearby.
     family_margin: |cos| difference needed between the two predicted families.
+    max_segment_rms_px: an edge's samples must lie within this RMS distance of the chord between its
+        junctions (camera px).
+    max_junction_offset_px: the fitted intersection may be this far from the crossing candidate
+        (camera px, at least a third of the junction core).
+    downsample_sigma_px: smoothing scales at or above this are computed on a half-resolution image
+        (wide lines; the samples are still about two camera pixels apart).
     """
 
     sigma_px: float | None = None
     threshold_sigma: float = 5.0
     min_relative_strength: float = 0.15
     anisotropy: float = 0.5
+    crossing_strength: float = 0.03
     family_margin: float = 0.15
     max_segment_rms_px: float = 0.6
     max_junction_offset_px: float = 1.5
+    downsample_sigma_px: float = 2.6
     debug: bool = False
 
 
@@ -55,13 +74,15 @@ class GridObservation:
     """What extraction found in one image.
 
     Samples (P): q (P, 2) sub-pixel line centres; family (P,) 1 = i-line, 2 = j-line; segment (P,) the
-        segment id or −1; junction (P,) the junction whose disk holds the sample or −1; strength (P,).
-    Junctions (M): q_junction (M, 2); junction_dir (M, 2, 2) fitted directions of the i- and j-line.
+        segment id or −1 (−1 too for samples a kept junction holds); junction (P,) the kept junction whose
+        arms hold the sample, or −1; strength (P,) the ridge's curvature (grey levels / px²).
+    Junctions (M): q_junction (M, 2); junction_dir (M, 2, 2) fitted directions of the i- and j-line;
+        junction_rms (M, 2) RMS distance (px) of each family's arm samples from its fitted line.
     Segments (S): segment_family (S,), segment_ends (S, 2) junction ids (−1 = none), segment_rms (S,)
         straight-line fit RMS (px), segment_centre (S, 2) and segment_dir (S, 2) of that fit.
     Edges (E): edges (E, 2) junction ids a → b, edge_family (E,), edge_delta (E, 2) the change of (i, j)
         from a to b (±1 in the index of the other family), edge_segment (E,).
-    stats: counts and reasons.
+    stats: counts, reasons and `ms` (time per stage).
     """
 
     q: np.ndarray
@@ -81,6 +102,7 @@ class GridObservation:
     edge_delta: np.ndarray
     edge_segment: np.ndarray
     stats: dict
+    junction_rms: np.ndarray | None = None
 
 
 def to_grey_float(image: np.ndarray) -> np.ndarray:
@@ -99,50 +121,155 @@ def to_grey_float(image: np.ndarray) -> np.ndarray:
 def image_noise_grey(img: np.ndarray) -> float:
     """Standard deviation (grey levels) of the sensor noise: the median absolute response to the 3×3
     operator [[1,−2,1],[−2,4,−2],[1,−2,1]] (which cancels planes and is 6σ for white noise; Immerkær 1996),
-    over a subsample. The median keeps lines and edges from inflating it."""
+    on up to ~64 k pixels (row blocks spread over the image). The median keeps lines and edges from
+    inflating it."""
+    H, W = img.shape
+    rows = max(3, min(H, 65536 // max(W, 1)))
+    if rows < H:
+        # blocks of 4 rows (3x3 needs neighbours), evenly spaced
+        starts = np.linspace(0, H - 4, max(1, rows // 4)).astype(np.intp)
+        img = np.concatenate([img[s : s + 4] for s in starts])
     k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
-    r = cv2.filter2D(img[::2, ::2] if min(img.shape) > 400 else img, cv2.CV_32F, k)[1:-1, 1:-1]
-    return float(np.median(np.abs(r))) / (0.6745 * 6.0)
+    r = cv2.filter2D(img.astype(np.float32, copy=False), cv2.CV_32F, k, borderType=cv2.BORDER_REFLECT)
+    if rows < H:
+        r = r.reshape(-1, 4, W)[:, 1:3, 1:-1]
+    else:
+        r = r[1:-1, 1:-1]
+    a = np.abs(r).ravel()
+    return float(np.partition(a, len(a) // 2)[len(a) // 2]) / (0.6745 * 6.0)
+
+
+def sigma_for(model: RigModel, options: ExtractOptions) -> float:
+    """The smoothing scale: given, or 0.4 × the predicted line width in the camera (at least 1 px).
+
+    A bright bar of width w smoothed by σ ≥ w/(2√3) has a single ridge at its centre (Steger 1998)."""
+    if options.sigma_px is not None:
+        return float(options.sigma_px)
+    return float(np.clip(0.4 * model.line_width_cam_px, 1.0, 8.0))
+
+
+def _gauss_kernel(sigma: float) -> np.ndarray:
+    r = max(1, int(np.ceil(3.5 * sigma)))
+    return cv2.getGaussianKernel(2 * r + 1, sigma, cv2.CV_32F)
+
+
+def _smooth(image: np.ndarray, sigma: float, scale: int) -> np.ndarray:
+    """The working image: Gaussian-smoothed float32 (H, W), or at half resolution (scale 2: pixel k of
+    the result is full-resolution pixel 2k) with the same total smoothing."""
+    img = np.asarray(image)
+    if scale == 1:
+        src = img if (img.ndim == 2 and img.dtype == np.uint8) else to_grey_float(img)
+        k = _gauss_kernel(sigma)
+        return cv2.sepFilter2D(src, cv2.CV_32F, k, k, borderType=cv2.BORDER_REFLECT)
+    half = cv2.pyrDown(to_grey_float(img))  # [1 4 6 4 1]/16: σ = 1 full-resolution px, then every 2nd pixel
+    sc = float(np.sqrt(max(sigma**2 - 1.0, 0.25))) / 2
+    k = _gauss_kernel(sc)
+    return cv2.sepFilter2D(half, cv2.CV_32F, k, k, borderType=cv2.BORDER_REFLECT)
 
 
 @lru_cache(maxsize=16)
-def _laplacian_noise_gain(sigma: float) -> float:
-    """Std of the smoothed image's discrete Laplacian per unit std of white pixel noise."""
-    n = int(np.ceil(4 * sigma)) * 2 + 9
-    delta = np.zeros((n, n), np.float32)
-    delta[n // 2, n // 2] = 1
-    resp = cv2.Laplacian(cv2.GaussianBlur(delta, (0, 0), sigma), cv2.CV_32F, ksize=1)
-    return float(np.sqrt((resp.astype(np.float64) ** 2).sum()))
+def _laplacian_noise_gain(sigma: float, scale: int) -> float:
+    """Std of the working image's discrete Laplacian per unit std of white pixel noise (numerically,
+    by pushing single-pixel impulses through the same filters)."""
+    n = 2 * (int(np.ceil(4 * sigma)) + 8)
+    acc = 0.0
+    for dy in range(scale):
+        for dx in range(scale):
+            delta = np.zeros((n, n), np.float32)
+            delta[n // 2 + dy, n // 2 + dx] = 1
+            resp = cv2.Laplacian(_smooth(delta, sigma, scale), cv2.CV_32F, ksize=1)
+            acc += float((resp.astype(np.float64) ** 2).sum())
+    # one impulse per phase of the decimation grid: the sum of their squared responses is the variance
+    return float(np.sqrt(acc))
 
 
-def _ridge_samples(G: np.ndarray, options: ExtractOptions, sigma: float, noise_grey: float) -> dict:
-    H, W = G.shape
-    lap = cv2.Laplacian(G, cv2.CV_32F, ksize=1)
-    # Noise of the Laplacian (and of the Hessian's eigenvalues, same order) from the sensor noise;
-    # at least 0.5 grey level (quantisation).
-    noise = max(noise_grey, 0.5) * _laplacian_noise_gain(round(sigma, 3))
+def _line_fit(groups: np.ndarray, q: np.ndarray, n_groups: int):
+    """Per-group total-least-squares line: centroid (G, 2), unit direction (G, 2), RMS distance (G,), count (G,)."""
+    num = np.bincount(groups, minlength=n_groups)
+    safe = np.maximum(num, 1).astype(np.float64)
+    mx = np.bincount(groups, weights=q[:, 0], minlength=n_groups) / safe
+    my = np.bincount(groups, weights=q[:, 1], minlength=n_groups) / safe
+    dx = q[:, 0] - mx[groups]
+    dy = q[:, 1] - my[groups]
+    sxx = np.bincount(groups, weights=dx * dx, minlength=n_groups) / safe
+    syy = np.bincount(groups, weights=dy * dy, minlength=n_groups) / safe
+    sxy = np.bincount(groups, weights=dx * dy, minlength=n_groups) / safe
+    theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+    direction = np.column_stack([np.cos(theta), np.sin(theta)])
+    half_tr = 0.5 * (sxx + syy)
+    disc = np.sqrt((0.5 * (sxx - syy)) ** 2 + sxy * sxy)
+    rms = np.sqrt(np.maximum(half_tr - disc, 0))
+    return np.column_stack([mx, my]), direction, rms, num
+
+
+def _hessian_at(G: np.ndarray, u: np.ndarray, v: np.ndarray):
+    """Gradient and Hessian (float32) of the working image at integer pixels, 3x3 central differences."""
+    W = G.shape[1]
+    g = G.ravel()
+    i = v.astype(np.intp) * W + u
+    c = g[i]
+    r = g[i + 1]
+    lf = g[i - 1]
+    dn = g[i + W]
+    up = g[i - W]
+    gx = 0.5 * (r - lf)
+    gy = 0.5 * (dn - up)
+    gxx = r - 2 * c + lf
+    gyy = dn - 2 * c + up
+    gxy = 0.25 * ((g[i + W + 1] - g[i + W - 1]) - (g[i - W + 1] - g[i - W - 1]))
+    return gx, gy, gxx, gyy, gxy
+
+
+def _cell_max(values: np.ndarray, cu: np.ndarray, cv_: np.ndarray, shape: tuple[int, int], spread: int) -> np.ndarray:
+    """Maximum of `values` per cell, then over (2·spread+1)² cells; (gh, gw) float32."""
+    m = np.zeros(shape, np.float32)
+    np.maximum.at(m.ravel(), cv_ * shape[1] + cu, values.astype(np.float32))
+    if spread > 0:
+        m = cv2.dilate(m, np.ones((2 * spread + 1, 2 * spread + 1), np.uint8))
+    return m
+
+
+def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions = ExtractOptions()) -> GridObservation:
+    """Find line samples, families, junctions and the segment graph in one camera image (see module doc).
+
+    image: (H, W) or (H, W, 3) uint8, uint16 or float (8-bit scale) camera image.
+    """
+    t0 = time.perf_counter()
+    ms: dict[str, float] = {}
+    sigma = sigma_for(model, options)
+    scale = 2 if sigma >= options.downsample_sigma_px else 1
+    img = np.asarray(image)
+    if img.ndim == 3 or img.dtype != np.uint8:
+        img = to_grey_float(img)
+    noise_grey = image_noise_grey(img)
+    G = _smooth(img, sigma, scale)
+    Hw, Ww = G.shape
+    s_w = sigma / scale  # smoothing in working pixels (approximately, for the geometry below)
+    t1 = time.perf_counter()
+    ms["smooth"] = 1e3 * (t1 - t0)
+
+    # --- 1–2. ridge candidates and Steger samples --------------------------------------------------------
+    noise = max(noise_grey, 0.5) * _laplacian_noise_gain(round(sigma, 3), scale)
     thr = options.threshold_sigma * noise
-    lap[0, :] = 0
-    lap[-1, :] = 0
-    lap[:, 0] = 0
-    lap[:, -1] = 0
-    cand = lap < -0.5 * thr
-    v, u = np.nonzero(cand)
-    g = G
-    c = g[v, u]
-    r = g[v, u + 1]
-    l_ = g[v, u - 1]
-    d = g[v + 1, u]
-    up = g[v - 1, u]
-    gx = 0.5 * (r - l_)
-    gy = 0.5 * (d - up)
-    gxx = r - 2 * c + l_
-    gyy = d - 2 * c + up
-    gxy = 0.25 * (g[v + 1, u + 1] - g[v + 1, u - 1] - g[v - 1, u + 1] + g[v - 1, u - 1])
+    lap = cv2.Laplacian(G, cv2.CV_32F, ksize=1)
+    mask = cv2.compare(lap, -0.5 * thr, cv2.CMP_LT)
+    mask[0, :] = 0
+    mask[-1, :] = 0
+    mask[:, 0] = 0
+    mask[:, -1] = 0
+    pts = cv2.findNonZero(mask)
+    pts = np.zeros((0, 2), np.int32) if pts is None else pts.reshape(-1, 2)
+    u = pts[:, 0].astype(np.intp)
+    v = pts[:, 1].astype(np.intp)
+    gx, gy, gxx, gyy, gxy = _hessian_at(G, u, v)
     half_tr = 0.5 * (gxx + gyy)
     disc = np.sqrt((0.5 * (gxx - gyy)) ** 2 + gxy * gxy)
     lam1 = half_tr - disc  # most negative
     lam2 = half_tr + disc
+    strength = -lam1
+    # crossing candidates: both curvatures clearly negative
+    is_x = (lam2 < -options.anisotropy * strength) & (-lam2 > thr)
+    xu, xv, xs = u[is_x], v[is_x], -lam2[is_x]
     # eigenvector of lam1: two algebraically equivalent forms, take the better-conditioned one
     ax, ay = gxy, lam1 - gxx
     bx, by = lam1 - gyy, gxy
@@ -157,267 +284,325 @@ def _ridge_samples(G: np.ndarray, options: ExtractOptions, sigma: float, noise_g
         t = -(gx * nx + gy * ny) / lam1
     ox = t * nx
     oy = t * ny
-    strength = -lam1
-    keep = (
-        (np.abs(ox) <= 0.5)
-        & (np.abs(oy) <= 0.5)
-        & (strength > thr)
-        & (lam2 > -options.anisotropy * strength)
-    )
-    return {
-        "u": u[keep],
-        "v": v[keep],
-        "q": np.column_stack([u[keep] + ox[keep], v[keep] + oy[keep]]).astype(np.float64),
-        "n": np.column_stack([nx[keep], ny[keep]]).astype(np.float64),
-        "strength": strength[keep].astype(np.float64),
-        "noise": noise,
-        "candidates": int(len(u)),
+    keep = (np.abs(ox) <= 0.5) & (np.abs(oy) <= 0.5) & (strength > thr) & (lam2 > -options.anisotropy * strength)
+    u, v = u[keep], v[keep]
+    q = np.column_stack([u + ox[keep], v + oy[keep]]).astype(np.float64)
+    nrm = np.column_stack([nx[keep], ny[keep]]).astype(np.float64)
+    strength = strength[keep]
+    stats: dict = {
+        "ridge_candidates": int(len(pts)),
+        "noise_laplacian": noise,
+        "noise_grey": noise_grey,
+        "sigma_px": sigma,
+        "scale": scale,
     }
+    t2 = time.perf_counter()
+    ms["ridges"] = 1e3 * (t2 - t1)
 
+    # --- uneven albedo: demand a fraction of the locally strongest ridge ---------------------------------
+    cell_s = 16
+    gsh = (Hw // cell_s + 1, Ww // cell_s + 1)
+    local = _cell_max(strength, u // cell_s, v // cell_s, gsh, 1)
+    ok = strength >= options.min_relative_strength * local[v // cell_s, u // cell_s]
+    q, nrm, strength, u, v = q[ok], nrm[ok], strength[ok], u[ok], v[ok]
+    okx = xs >= options.crossing_strength * local[xv // cell_s, xu // cell_s]
+    xu, xv, xs = xu[okx], xv[okx], xs[okx]
 
-def _line_fit_moments(groups: np.ndarray, q: np.ndarray, n_groups: int, weights: np.ndarray | None = None):
-    """Per-group total-least-squares line: centroid (G, 2), unit direction (G, 2), RMS distance (G,), count (G,)."""
-    w = np.ones(len(q)) if weights is None else weights
-    cnt = np.bincount(groups, weights=w, minlength=n_groups)
-    num = np.bincount(groups, minlength=n_groups)
-    safe = np.where(cnt > 0, cnt, 1)
-    mx = np.bincount(groups, weights=w * q[:, 0], minlength=n_groups) / safe
-    my = np.bincount(groups, weights=w * q[:, 1], minlength=n_groups) / safe
-    dx = q[:, 0] - mx[groups]
-    dy = q[:, 1] - my[groups]
-    sxx = np.bincount(groups, weights=w * dx * dx, minlength=n_groups) / safe
-    syy = np.bincount(groups, weights=w * dy * dy, minlength=n_groups) / safe
-    sxy = np.bincount(groups, weights=w * dx * dy, minlength=n_groups) / safe
-    theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)
-    direction = np.column_stack([np.cos(theta), np.sin(theta)])
-    half_tr = 0.5 * (sxx + syy)
-    disc = np.sqrt((0.5 * (sxx - syy)) ** 2 + sxy * sxy)
-    rms = np.sqrt(np.maximum(half_tr - disc, 0))
-    return np.column_stack([mx, my]), direction, rms, num
-
-
-def sigma_for(model: RigModel, options: ExtractOptions) -> float:
-    """The smoothing scale: given, or 0.4 × the predicted line width in the camera (at least 1 px).
-
-    A bright bar of width w smoothed by σ ≥ w/(2√3) has a single ridge at its centre (Steger 1998)."""
-    if options.sigma_px is not None:
-        return float(options.sigma_px)
-    return float(np.clip(0.4 * model.line_width_cam_px, 1.0, 8.0))
-
-
-def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions = ExtractOptions()) -> GridObservation:
-    """Find line samples, families, junctions and the segment graph in one camera image (see module doc)."""
-    sigma = sigma_for(model, options)
-    grey = to_grey_float(image)
-    noise_grey = image_noise_grey(grey)
-    G = cv2.GaussianBlur(grey, (0, 0), sigma)
-    H, W = G.shape
-    rs = _ridge_samples(G, options, sigma, noise_grey)
-    q, nrm, strength = rs["q"], rs["n"], rs["strength"]
-    u, v = rs["u"], rs["v"]
-    stats: dict = {"ridge_candidates": rs["candidates"], "noise_laplacian": rs["noise"], "noise_grey": noise_grey, "sigma_px": sigma}
-
-    # Uneven albedo: also demand a fraction of the locally strongest ridge.
-    if len(q) and options.min_relative_strength > 0:
-        simg = np.zeros((H, W), np.float32)
-        simg[v, u] = strength
-        k = 31
-        local_max = cv2.dilate(simg, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
-        ok = strength >= options.min_relative_strength * local_max[v, u]
-        q, nrm, strength, u, v = q[ok], nrm[ok], strength[ok], u[ok], v[ok]
-
-    # Families from the predicted directions.
-    dirs, _ = model.lookup(q)
+    # --- 3. families from the predicted directions -------------------------------------------------------
+    q_full = q * scale
+    dirs, _ = model.lookup(q_full)
     d_line = np.column_stack([-nrm[:, 1], nrm[:, 0]])
     c1 = np.abs(np.einsum("ij,ij->i", d_line, dirs[:, 0]))
     c2 = np.abs(np.einsum("ij,ij->i", d_line, dirs[:, 1]))
     fam = np.where(c1 >= c2, 1, 2).astype(np.int8)
     ok = np.abs(c1 - c2) >= options.family_margin
     q, nrm, strength, u, v, fam = q[ok], nrm[ok], strength[ok], u[ok], v[ok], fam[ok]
-    stats["samples"] = int(len(q))
+    P = len(q)
+    stats["samples"] = int(P)
+    t3 = time.perf_counter()
+    ms["families"] = 1e3 * (t3 - t2)
 
-    # Junction candidates: both families' masks, dilated, overlap.
-    m1 = np.zeros((H, W), np.uint8)
-    m2 = np.zeros((H, W), np.uint8)
-    m1[v[fam == 1], u[fam == 1]] = 1
-    m2[v[fam == 2], u[fam == 2]] = 1
-    # The ridges of both families stop within about the smoothing scale of a crossing: bridge that gap.
-    kr = int(np.ceil(max(2.0, 1.6 * sigma)))
-    ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * kr + 1, 2 * kr + 1))
-    both = cv2.bitwise_and(cv2.dilate(m1, ker), cv2.dilate(m2, ker))
-    nb, blob_lab, blob_stats, blob_c = cv2.connectedComponentsWithStats(both, connectivity=8, ltype=cv2.CV_32S)
-    cen = blob_c[1:].astype(np.float64)
-    stats["junction_candidates"] = int(nb - 1)
+    # --- 4a. crossing candidates: local maxima of the weaker curvature ------------------------------------
+    step = model.junction_step_cam_px / scale  # predicted junction spacing along a line, working px
+    cell = float(max(1.5, 0.2 * step))
+    r0 = float(np.clip(1.6 * s_w + 0.5, 1.5, 0.3 * step))  # core: the crossing biases the ridge there
+    r_att = float(min(r0 + 1.5 * s_w + 2.0, 0.45 * step + 1.0))  # a line reaching this close meets the crossing
+    R = float(max(0.6 * step, r_att + 1.0))  # arms (further bounded by the neighbouring junctions)
+    gh, gw = int(Hw / cell) + 1, int(Ww / cell) + 1
+    xcu = (xu / cell).astype(np.intp)
+    xcv = (xv / cell).astype(np.intp)
+    if len(xs):
+        cmax = _cell_max(xs, xcu, xcv, (gh, gw), 1)
+        seed = xs >= cmax[xcv, xcu]
+    else:
+        seed = np.zeros(0, bool)
+    order = np.argsort(xs[seed], kind="stable")  # weakest first: the strongest seed wins overlaps below
+    seeds = np.column_stack([xu[seed][order], xv[seed][order]]).astype(np.float64)
+    seed_score = xs[seed][order]
+    stats["junction_candidates"] = int(len(seeds))
+    stats["junction_radius_px"] = R * scale
+    stats["junction_core_px"] = r0 * scale
+    reasons = {"too_few_samples": 0, "not_through": 0, "parallel": 0, "off_centre": 0, "crooked": 0, "duplicate": 0}
 
-    empty = _empty_observation(q, fam, strength, stats)
-    if nb <= 1:
-        return empty
+    def stamp(centres: np.ndarray, radius: float) -> np.ndarray:
+        """Flat (Hw·Ww,) int32 image holding, within `radius` of each centre, the centre's index (−1 elsewhere)."""
+        img_ = np.full(Hw * Ww, -1, np.int32)
+        rr = int(np.ceil(radius))
+        oy_, ox_ = np.mgrid[-rr : rr + 1, -rr : rr + 1]
+        disk = ox_**2 + oy_**2 <= radius * radius
+        ox_, oy_ = ox_[disk], oy_[disk]
+        cu_ = np.rint(centres[:, 0]).astype(np.intp)[:, None] + ox_
+        cv_ = np.rint(centres[:, 1]).astype(np.intp)[:, None] + oy_
+        inside_ = (cu_ >= 0) & (cu_ < Ww) & (cv_ >= 0) & (cv_ < Hw)
+        ids_ = np.broadcast_to(np.arange(len(centres), dtype=np.int32)[:, None], cu_.shape)
+        img_[(cv_ * Ww + cu_)[inside_]] = ids_[inside_]
+        return img_
 
-    # Disk radius from the junction spacing the calibration predicts; the core (biased by the crossing
-    # itself) from the smoothing scale.
-    step = model.junction_step_cam_px
-    R = float(np.clip(0.4 * step, 3.0, 60.0))
-    r0 = float(min(max(1.5, 1.6 * sigma + 0.5), 0.6 * R))
-    # Non-maximum suppression: one candidate per crossing (largest blob wins).
-    if len(cen) >= 2:
-        area = blob_stats[1:, cv2.CC_STAT_AREA]
-        order_c = np.argsort(-area, kind="stable")
-        tree_c = cKDTree(cen)
-        alive = np.ones(len(cen), bool)
-        for k in order_c.tolist():
-            if alive[k]:
-                for o in tree_c.query_ball_point(cen[k], r=R):
-                    if o != k:
-                        alive[o] = False
-        cen = cen[alive]
-        stats["junction_candidates"] = int(len(cen))
-    stats["junction_radius_px"] = R
-    stats["junction_core_px"] = r0
+    # sub-pixel candidates: the score-weighted centroid of the crossing pixels around each maximum (a
+    # crossing is point-symmetric, so is its blob)
+    if len(seeds):
+        lab_x = stamp(seeds, max(r0, 1.5))[xv * Ww + xu]
+        okx = lab_x >= 0
+        wsum = np.bincount(lab_x[okx], weights=xs[okx], minlength=len(seeds))
+        seeds = np.column_stack([
+            np.bincount(lab_x[okx], weights=xs[okx] * xu[okx], minlength=len(seeds)),
+            np.bincount(lab_x[okx], weights=xs[okx] * xv[okx], minlength=len(seeds)),
+        ]) / np.maximum(wsum, 1e-12)[:, None]
 
-    # Junction id image: each candidate's disk (radius R) carries its id + 1.
-    # (dilate single centroid pixels, not the blobs: a blob's own extent would widen the disk)
-    lab16 = np.zeros((H, W), np.float32)
-    ci = np.clip(np.rint(cen).astype(np.intp), 0, [W - 1, H - 1])
-    lab16[ci[:, 1], ci[:, 0]] = np.arange(1, len(cen) + 1, dtype=np.float32)
-    rk = int(np.ceil(R))
-    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rk + 1, 2 * rk + 1))
-    jimg = cv2.dilate(lab16, disk)
-    jid = jimg[v, u].astype(np.int64) - 1  # −1: outside every disk
-    dist_c = np.full(len(q), np.inf)
-    inj = jid >= 0
-    dist_c[inj] = np.linalg.norm(q[inj] - cen[jid[inj]], axis=1)
-    inj &= dist_c <= R + 1.0
+    # samples near each candidate; a candidate is a crossing only where both families come close
+    near = np.full(P, -1, np.intp)
+    dist = np.full(P, np.inf)
+    if len(seeds) and P:
+        st_img = stamp(seeds, r_att)
+        near = st_img[v * Ww + u].astype(np.intp)
+        has = near >= 0
+        dist[has] = np.hypot(*(q[has] - seeds[near[has]]).T)
+        ring = has & (dist > r0)
+        n_ring = np.bincount(2 * near[ring] + fam[ring] - 1, minlength=2 * len(seeds)).reshape(-1, 2)
+        crossing = (n_ring >= 2).all(axis=1)
+        reasons["too_few_samples"] = int((~crossing).sum())
+        seeds, seed_score = seeds[crossing], seed_score[crossing]
+    ns = len(seeds)
+    core = np.zeros(P, bool)
+    if ns and P:
+        core_img = stamp(seeds, r0)
+        kc = core_img[v * Ww + u].astype(np.intp)
+        core = kc >= 0
+        core[core] = np.hypot(*(q[core] - seeds[kc[core]]).T) <= r0
 
-    # Line fits per (junction, family) in the annulus r0 < d <= R.
-    nj = len(cen)
-    ann = inj & (dist_c > r0)
-    fits = {}
-    for f in (1, 2):
-        sel = ann & (fam == f)
-        grp = jid[sel]
-        cen_f, dir_f, rms_f, cnt_f = _line_fit_moments(grp, q[sel], nj)
-        # Through test: samples on both sides of the centre along the line.
-        s = np.einsum("ij,ij->i", q[sel] - cen[grp], dir_f[grp])
-        smin = np.full(nj, np.inf)
-        smax = np.full(nj, -np.inf)
-        np.minimum.at(smin, grp, s)
-        np.maximum.at(smax, grp, s)
-        fits[f] = (cen_f, dir_f, rms_f, cnt_f, smin, smax)
-    side = 0.5 * (r0 + R) * 0.6
-    valid = np.ones(nj, bool)
-    reasons = {"too_few_samples": 0, "not_through": 0, "parallel": 0, "off_centre": 0}
-    for f in (1, 2):
-        cen_f, dir_f, rms_f, cnt_f, smin, smax = fits[f]
-        few = cnt_f < 3
-        if options.debug:
-            stats[f"debug_fit{f}"] = (cnt_f, smin, smax, rms_f)
-        reasons["too_few_samples"] += int((valid & few).sum())
-        valid &= ~few
-        nt = ~((smin < -side) & (smax > side))
-        reasons["not_through"] += int((valid & nt).sum())
-        valid &= ~nt
-    # Intersection of the two fitted lines: c1 + a·d1 = c2 + b·d2.
-    c1_, d1_ = fits[1][0], fits[1][1]
-    c2_, d2_ = fits[2][0], fits[2][1]
-    cross = d1_[:, 0] * d2_[:, 1] - d1_[:, 1] * d2_[:, 0]
-    par = np.abs(cross) < 0.2
-    reasons["parallel"] += int((valid & par).sum())
-    valid &= ~par
-    with np.errstate(divide="ignore", invalid="ignore"):
-        diff = c2_ - c1_
-        a = (diff[:, 0] * d2_[:, 1] - diff[:, 1] * d2_[:, 0]) / cross
-        qj = c1_ + a[:, None] * d1_
-    off = np.linalg.norm(qj - cen, axis=1) > max(options.max_junction_offset_px, 0.35 * R)
-    off |= ~np.isfinite(qj).all(axis=1)
-    reasons["off_centre"] += int((valid & off).sum())
-    valid &= ~off
-    stats["junctions_rejected"] = reasons
-    if options.debug:
-        stats["debug_candidates"] = cen
-        stats["debug_valid"] = valid
-
-    # Renumber valid junctions 0..M-1.
-    new_id = np.full(nj, -1, np.int64)
-    new_id[valid] = np.arange(int(valid.sum()))
-    q_junction = qj[valid]
-    junction_dir = np.stack([d1_[valid], d2_[valid]], axis=1)
-    M = len(q_junction)
-    stats["junctions"] = M
-
-    sample_junction = np.where(inj, new_id[np.where(jid >= 0, jid, 0)], -1)
-    sample_junction[~inj] = -1
-
-    # Segments: samples outside all disks, connected per family.
-    outside = ~inj
-    seg = np.full(len(q), -1, np.int64)
-    seg_family = []
-    seg_offset = 0
-    for f in (1, 2):
-        sel = outside & (fam == f)
-        mask = np.zeros((H, W), np.uint8)
-        mask[v[sel], u[sel]] = 1
-        ns, slab = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
-        seg[sel] = slab[v[sel], u[sel]] - 1 + seg_offset
-        seg_family.append(np.full(ns - 1, f, np.int8))
-        seg_offset += ns - 1
-    seg_family = np.concatenate(seg_family) if seg_family else np.zeros(0, np.int8)
-    S = seg_offset
+    # --- 5a. segments: link samples outside the crossings' cores along their line -------------------------
+    fidx = np.nonzero(~core)[0]
+    ids = np.full(Hw * Ww, -1, np.int32)
+    ids[v[fidx] * Ww + u[fidx]] = fidx
+    src_l, dst_l = [], []
+    uf, vf = u[fidx], v[fidx]
+    for du, dv in ((1, 0), (2, 0), (-2, 1), (-1, 1), (0, 1), (1, 1), (2, 1), (-2, 2), (-1, 2), (0, 2), (1, 2), (2, 2)):
+        uu = uf + du
+        vv = vf + dv
+        inside = (uu >= 0) & (uu < Ww) & (vv < Hw)
+        o = np.full(len(fidx), -1, np.int64)
+        o[inside] = ids[vv[inside] * Ww + uu[inside]]
+        src_l.append(fidx[o >= 0])
+        dst_l.append(o[o >= 0])
+    a_ = np.concatenate(src_l)
+    b_ = np.concatenate(dst_l)
+    dq = q[b_] - q[a_]
+    same = (fam[a_] == fam[b_]) & (np.abs(np.einsum("ij,ij->i", nrm[a_], nrm[b_])) >= 0.9)
+    across = np.maximum(np.abs(np.einsum("ij,ij->i", dq, nrm[a_])), np.abs(np.einsum("ij,ij->i", dq, nrm[b_])))
+    link = same & (across <= 0.5 + 0.25 * np.hypot(dq[:, 0], dq[:, 1]))
+    seg = np.full(P, -1, np.int64)
+    S = 0
+    if len(fidx):
+        pos = np.full(P, -1, np.int64)
+        pos[fidx] = np.arange(len(fidx))
+        A = coo_matrix((np.ones(int(link.sum()), np.int8), (pos[a_[link]], pos[b_[link]])), shape=(len(fidx), len(fidx)))
+        S, comp = connected_components(A, directed=False)
+        seg[fidx] = comp
+        cnt_s = np.bincount(comp, minlength=S)
+        keep_s = cnt_s >= 2  # single samples are no segment
+        remap = np.full(S, -1, np.int64)
+        remap[keep_s] = np.arange(int(keep_s.sum()))
+        seg[fidx] = remap[comp]
+        S = int(keep_s.sum())
     has_seg = seg >= 0
-    _, seg_dir, seg_rms, seg_cnt = _line_fit_moments(seg[has_seg], q[has_seg], S)
-
-    # Segment direction: mean of the samples' line directions (doubled angles; robust for short segments).
-    seg_cen = np.zeros((S, 2))
-    segment_ends = np.full((S, 2), -1, np.int64)
+    sidx = np.nonzero(has_seg)[0]
+    sg = seg[sidx]
+    seg_family = np.zeros(S, np.int8)
+    seg_family[sg] = fam[sidx]
+    seg_cen, seg_dir, seg_rms, _ = _line_fit(sg, q[sidx], S)
     stats["segments"] = int(S)
-    if has_seg.any():
-        sg = seg[has_seg]
-        cnt = np.bincount(sg, minlength=S).astype(np.float64)
-        cnt[cnt == 0] = 1
-        seg_cen[:, 0] = np.bincount(sg, weights=q[has_seg, 0], minlength=S) / cnt
-        seg_cen[:, 1] = np.bincount(sg, weights=q[has_seg, 1], minlength=S) / cnt
-        ang2 = 2 * np.arctan2(nrm[has_seg, 0], -nrm[has_seg, 1])  # direction (−ny, nx)
-        c2m = np.bincount(sg, weights=np.cos(ang2), minlength=S)
-        s2m = np.bincount(sg, weights=np.sin(ang2), minlength=S)
-        th = 0.5 * np.arctan2(s2m, c2m)
-        seg_dir = np.column_stack([np.cos(th), np.sin(th)])
-        # Extremes along the direction; each end's junction is the candidate about R beyond it.
-        sproj = np.einsum("ij,ij->i", q[has_seg] - seg_cen[sg], seg_dir[sg])
-        smin = np.full(S, np.inf)
-        smax = np.full(S, -np.inf)
+
+    # --- 5b. segment ends: the crossing each end reaches ---------------------------------------------------
+    seg_seed = np.full((S, 2), -1, np.int64)
+    t_points: list[np.ndarray] = []
+    sproj = np.einsum("ij,ij->i", q[sidx] - seg_cen[sg], seg_dir[sg])
+    smin = np.full(S, np.inf)
+    smax = np.full(S, -np.inf)
+    if S:
         np.minimum.at(smin, sg, sproj)
         np.maximum.at(smax, sg, sproj)
-        tree = cKDTree(cen)
-        for k, (sv, sgn) in enumerate(((smin, -1.0), (smax, 1.0))):
-            probe = seg_cen + (sv + sgn * R)[:, None] * seg_dir
-            dist, near = tree.query(probe, k=1, distance_upper_bound=0.6 * R + 1.0)
-            hit = np.isfinite(dist)
-            segment_ends[hit, k] = new_id[near[hit]]
-    stats["segments_branching"] = 0
+    if S and ns:
+        # walk from each end outwards; the first candidate within `r_side` of the walk is the one it reaches
+        r_side = 1.5 + 0.75 * s_w
+        side_img = stamp(seeds, r_side)
+        probes = np.arange(0.0, r_att + 0.5, 0.75)
+        for k, (sv_, sgn) in enumerate(((smin, -1.0), (smax, 1.0))):
+            # the end sample itself and its own tangent, pointing away from the segment
+            is_end = sproj == sv_[sg]
+            e_i = np.zeros(S, np.intp)
+            e_i[sg[is_end]] = sidx[is_end]
+            end = q[e_i]
+            tan = np.column_stack([-nrm[e_i, 1], nrm[e_i, 0]])
+            tan *= np.where(np.einsum("ij,ij->i", tan, seg_dir) * sgn >= 0, 1.0, -1.0)[:, None]
+            pu = end[:, 0:1] + probes[None, :] * tan[:, 0:1]
+            pv = end[:, 1:2] + probes[None, :] * tan[:, 1:2]
+            iu = np.rint(pu).astype(np.intp)
+            iv = np.rint(pv).astype(np.intp)
+            inside = (iu >= 0) & (iu < Ww) & (iv >= 0) & (iv < Hw)
+            hit = np.full(iu.shape, -1, np.intp)
+            hit[inside] = side_img[iv[inside] * Ww + iu[inside]]
+            first = np.argmax(hit >= 0, axis=1)
+            kk = hit[np.arange(S), first]
+            ok_ = kk >= 0
+            dd = np.hypot(*(end - seeds[np.maximum(kk, 0)]).T)
+            ok_ &= dd <= r_att + r_side
+            seg_seed[ok_, k] = kk[ok_]
+            # a free end running into a line of the other family is a T (rim, occlusion, shadow edge):
+            # remember where, the ridge of that line is biased there
+            free_end = ~ok_
+            if free_end.any():
+                hs = np.full(iu.shape, -1, np.intp)
+                hs[inside] = ids[iv[inside] * Ww + iu[inside]]
+                other_fam = (hs >= 0) & (fam[np.maximum(hs, 0)] != seg_family[:, None]) & free_end[:, None]
+                has_t = other_fam.any(axis=1)
+                first_t = np.argmax(other_fam, axis=1)
+                t_points.append(q[hs[has_t, first_t[has_t]]])
 
-    # Edges: two ends, straight, passing through both junctions.
+    # --- 4b. junctions: line fits on the arms (the segments reaching a crossing), intersected -------------
+    arm_of = np.full(P, -1, np.intp)
+    if S and ns:
+        sa = seg_seed[sg]
+        d_lo = sproj - smin[sg]
+        d_hi = smax[sg] - sproj
+        pick = np.where((sa[:, 1] >= 0) & ((sa[:, 0] < 0) | (d_hi < d_lo)), sa[:, 1], sa[:, 0])
+        okp = pick >= 0
+        dd = np.full(len(sidx), np.inf)
+        dd[okp] = np.hypot(*(q[sidx[okp]] - seeds[pick[okp]]).T)
+        arm_of[sidx[okp & (dd <= R)]] = pick[okp & (dd <= R)]
+    valid = np.zeros(ns, bool)
+    qj = np.full((ns, 2), np.nan)
+    d1 = np.zeros((ns, 2))
+    d2 = np.zeros((ns, 2))
+    rms_j = np.zeros((ns, 2))
+    if ns:
+        aidx = np.nonzero(arm_of >= 0)[0]
+        grp = 2 * arm_of[aidx] + fam[aidx] - 1
+        qa = q[aidx]
+        cen, dr, rms, cnt = _line_fit(grp, qa, 2 * ns)
+        off = np.abs((qa[:, 0] - cen[grp, 0]) * dr[grp, 1] - (qa[:, 1] - cen[grp, 1]) * dr[grp, 0])
+        inl = off <= np.maximum(1.0, 3 * rms[grp])
+        grp, qa = grp[inl], qa[inl]
+        cen, dr, rms, cnt = _line_fit(grp, qa, 2 * ns)
+        s = np.einsum("ij,ij->i", qa - seeds[grp // 2], dr[grp])
+        n_neg = np.bincount(grp, weights=s < -0.5, minlength=2 * ns).reshape(ns, 2)
+        n_pos = np.bincount(grp, weights=s > 0.5, minlength=2 * ns).reshape(ns, 2)
+        cen = cen.reshape(ns, 2, 2)
+        dr = dr.reshape(ns, 2, 2)
+        rms = rms.reshape(ns, 2)
+        cnt = cnt.reshape(ns, 2)
+        valid = np.ones(ns, bool)
+        few = (cnt < 4).any(axis=1)
+        reasons["too_few_samples"] += int(few.sum())
+        valid &= ~few
+        through = ((n_neg >= 2) & (n_pos >= 2)).all(axis=1)
+        reasons["not_through"] = int((valid & ~through).sum())
+        valid &= through
+        d1, d2 = dr[:, 0], dr[:, 1]
+        cross = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+        par = np.abs(cross) < 0.2
+        reasons["parallel"] = int((valid & par).sum())
+        valid &= ~par
+        with np.errstate(divide="ignore", invalid="ignore"):
+            diff = cen[:, 1] - cen[:, 0]
+            a = (diff[:, 0] * d2[:, 1] - diff[:, 1] * d2[:, 0]) / cross
+            qj = cen[:, 0] + a[:, None] * d1
+        offc = np.hypot(*(qj - seeds).T) > max(options.max_junction_offset_px / scale, 0.5 * r0 + 0.5)
+        offc |= ~np.isfinite(qj).all(axis=1)
+        reasons["off_centre"] = int((valid & offc).sum())
+        valid &= ~offc
+        rms_j = rms
+        crooked = (rms > options.max_segment_rms_px / scale).any(axis=1)
+        reasons["crooked"] = int((valid & crooked).sum())
+        valid &= ~crooked
+        # two candidates on one crossing converge to one intersection: keep the stronger
+        vid = np.nonzero(valid)[0]
+        if len(vid) > 1:
+            key = np.rint(qj[vid] / 2.0).astype(np.int64)
+            o2 = np.lexsort((-seed_score[vid], key[:, 1], key[:, 0]))
+            ks = key[o2]
+            dup = np.zeros(len(vid), bool)
+            dup[1:] = (ks[1:] == ks[:-1]).all(axis=1)
+            valid[vid[o2[dup]]] = False
+            reasons["duplicate"] = int(dup.sum())
+        if options.debug:
+            stats["debug_fit"] = {"cnt": cnt, "n_neg": n_neg, "n_pos": n_pos, "rms": rms, "qj": qj * scale}
+    stats["junctions_rejected"] = reasons
+    if options.debug:
+        stats["debug_seg"] = seg
+        stats["debug_seg_seed"] = seg_seed
+        stats["debug_core"] = core
+        stats["debug_candidates"] = seeds * scale
+        stats["debug_valid"] = valid.copy()
+    new_id = np.full(ns + 1, -1, np.int64)
+    new_id[:ns][valid] = np.arange(int(valid.sum()))
+    q_junction = qj[valid]
+    junction_dir = np.stack([d1[valid], d2[valid]], axis=1) if ns else np.zeros((0, 2, 2))
+    junction_rms = rms_j[valid] * scale if ns else np.zeros((0, 2))
+    M = len(q_junction)
+    stats["junctions"] = M
+    sample_junction = new_id[arm_of]
+    segment_ends = new_id[seg_seed]
+    # samples a kept junction holds are reported with it, not with their segment; near a rejected
+    # crossing (T- and L-shapes: the pattern's rim, occlusions) the other line's light biases the ridge,
+    # so samples there are left out of their segment
+    seg_out = np.where(sample_junction >= 0, -1, seg)
+    biased = [seeds[~valid]] + t_points
+    biased = np.concatenate(biased) if len(biased) > 1 else biased[0]
+    if len(biased) and P:
+        r_bias = r0 + s_w
+        kb = stamp(biased, r_bias)[v * Ww + u]
+        nb = kb >= 0
+        nb[nb] = np.hypot(*(q[nb] - biased[kb[nb]]).T) <= r_bias
+        seg_out[nb & (sample_junction < 0)] = -1
+        stats["biased_samples"] = int(nb.sum())
+    t4 = time.perf_counter()
+    ms["junctions+segments"] = 1e3 * (t4 - t3)
+
+    # --- edges: two ends on two junctions, straight along the chord --------------------------------------
     cand = (segment_ends[:, 0] >= 0) & (segment_ends[:, 1] >= 0) & (segment_ends[:, 0] != segment_ends[:, 1])
-    # Straightness: the samples must lie on the chord between the two junctions (short segments, whose own
-    # fit is poorly conditioned, are judged by the chord too).
-    qa = np.full((S, 2), np.nan)
-    qb = np.full((S, 2), np.nan)
-    qa[cand] = q_junction[segment_ends[cand, 0]]
-    qb[cand] = q_junction[segment_ends[cand, 1]]
-    chord = qb - qa
-    clen = np.linalg.norm(chord, axis=1)
+    qa_ = np.full((S, 2), np.nan)
+    qb_ = np.full((S, 2), np.nan)
+    qa_[cand] = q_junction[segment_ends[cand, 0]]
+    qb_[cand] = q_junction[segment_ends[cand, 1]]
+    chord = qb_ - qa_
+    clen = np.hypot(chord[:, 0], chord[:, 1])
     cn = np.column_stack([-chord[:, 1], chord[:, 0]]) / np.where(clen > 0, clen, 1)[:, None]
     sh = has_seg & cand[np.maximum(seg, 0)]
-    dist_ch = np.abs(np.einsum("ij,ij->i", q[sh] - qa[seg[sh]], cn[seg[sh]]))
+    dist_ch = np.abs(np.einsum("ij,ij->i", q[sh] - qa_[seg[sh]], cn[seg[sh]]))
     n_sh = np.bincount(seg[sh], minlength=S)
     rms_ch = np.sqrt(np.bincount(seg[sh], weights=dist_ch**2, minlength=S) / np.maximum(n_sh, 1))
-    tol = options.max_segment_rms_px
-    straight = cand & (rms_ch <= tol) & (n_sh >= 1)
+    max_ch = np.zeros(S)
+    if sh.any():
+        np.maximum.at(max_ch, seg[sh], dist_ch)
+    tol = options.max_segment_rms_px / scale
+    straight = cand & (rms_ch <= tol) & (max_ch <= 3 * tol + 0.5)
     stats["segments_crooked"] = int((cand & ~straight).sum())
     sid = np.nonzero(straight)[0]
     a_j = segment_ends[sid, 0]
     b_j = segment_ends[sid, 1]
     fam_s = seg_family[sid]
-    # Index change along the edge, from the predicted camera->projector Jacobian.
-    mid = 0.5 * (q_junction[a_j] + q_junction[b_j])
+    # index change along the edge, from the predicted camera->projector Jacobian
+    mid = 0.5 * (q_junction[a_j] + q_junction[b_j]) * scale
     _, Jpc = model.lookup(mid)
     dq_proj = np.einsum("nij,nj->ni", Jpc, q_junction[b_j] - q_junction[a_j])
     n_other = np.where(fam_s == 1, model.pattern.n2, model.pattern.n1)
@@ -428,46 +613,28 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     good = s_other != 0
     edges = np.column_stack([a_j, b_j])[good]
     stats["edges"] = int(good.sum())
+    t5 = time.perf_counter()
+    ms["edges"] = 1e3 * (t5 - t4)
+    ms["total"] = 1e3 * (t5 - t0)
+    stats["ms"] = ms
 
     return GridObservation(
-        q=q,
+        q=q * scale,
         family=fam,
-        segment=seg,
+        segment=seg_out,
         junction=sample_junction,
-        strength=strength,
-        q_junction=q_junction,
+        strength=strength.astype(np.float64),
+        q_junction=q_junction * scale,
         junction_dir=junction_dir,
         segment_family=seg_family,
         segment_ends=segment_ends,
-        segment_rms=seg_rms,
-        segment_centre=seg_cen,
+        segment_rms=seg_rms * scale,
+        segment_centre=seg_cen * scale,
         segment_dir=seg_dir,
         edges=edges,
         edge_family=fam_s[good],
         edge_delta=delta[good],
         edge_segment=sid[good],
         stats=stats,
-    )
-
-
-def _empty_observation(q, fam, strength, stats) -> GridObservation:
-    stats = {**stats, "junctions": 0, "segments": 0, "edges": 0}
-    return GridObservation(
-        q=q,
-        family=fam,
-        segment=np.full(len(q), -1, np.int64),
-        junction=np.full(len(q), -1, np.int64),
-        strength=strength,
-        q_junction=np.zeros((0, 2)),
-        junction_dir=np.zeros((0, 2, 2)),
-        segment_family=np.zeros(0, np.int8),
-        segment_ends=np.zeros((0, 2), np.int64),
-        segment_rms=np.zeros(0),
-        segment_centre=np.zeros((0, 2)),
-        segment_dir=np.zeros((0, 2)),
-        edges=np.zeros((0, 2), np.int64),
-        edge_family=np.zeros(0, np.int8),
-        edge_delta=np.zeros((0, 2), np.int64),
-        edge_segment=np.zeros(0, np.int64),
-        stats=stats,
+        junction_rms=junction_rms,
     )
