@@ -177,7 +177,9 @@ class _Choice:
     rms: tuple[float, float] = (float("nan"), float("nan"))  # best, runner-up
 
 
-def _choose_offset(model: RigModel, rel: np.ndarray, ln: np.ndarray, xy_cam: np.ndarray, options: LabelOptions, stats: dict) -> _Choice:
+def _choose_offset(
+    model: RigModel, rel: np.ndarray, ln: np.ndarray, xy_cam: np.ndarray, options: LabelOptions, stats: dict, *, _inlier_retry: bool = True
+) -> _Choice:
     """Score every admissible integer offset of one component (relative labels rel (m, 2), epipolar lines
     ln (m, 3), normalised camera points xy_cam (m, 2)) and apply the range and ambiguity tests."""
     m = len(rel)
@@ -186,14 +188,6 @@ def _choose_offset(model: RigModel, rel: np.ndarray, ln: np.ndarray, xy_cam: np.
         return _Choice("no_admissible_offset")
     L = model.index_max - model.index_min + 1
     cap2 = options.residual_cap_px**2
-    # Admissible offsets keep every label inside the pattern.
-    lo_i = model.index_min - rel[:, 0].min()
-    hi_i = model.index_max - rel[:, 0].max()
-    lo_j = model.index_min - rel[:, 1].min()
-    hi_j = model.index_max - rel[:, 1].max()
-    if lo_i > hi_i or lo_j > hi_j:
-        stats["out_of_pattern"] += 1
-        return _Choice("no_admissible_offset")
     # Candidate offsets: pattern junctions near the epipolar lines of a few reference junctions.
     refs = np.flatnonzero(ok_line)
     refs = np.unique(refs[np.linspace(0, len(refs) - 1, min(options.candidate_refs, len(refs))).astype(int)])
@@ -204,24 +198,36 @@ def _choose_offset(model: RigModel, rel: np.ndarray, ln: np.ndarray, xy_cam: np.
         near = np.flatnonzero(d <= options.candidate_band_px)
         I = near // L + model.index_min - rel[r, 0]
         J = near % L + model.index_min - rel[r, 1]
-        inside = (I >= lo_i) & (I <= hi_i) & (J >= lo_j) & (J <= hi_j)
-        cands.update(zip(I[inside].tolist(), J[inside].tolist()))
+        cands.update(zip(I.tolist(), J.tolist()))
     if not cands:
         stats["out_of_pattern"] += 1
         return _Choice("no_admissible_offset")
+    off_all = np.array(sorted(cands), np.int64)
+    # Admissible offsets keep (nearly) every label inside the pattern; the few outside (a bad edge shifted
+    # them) become outliers below.
+    in_pat_all = model.in_pattern(rel[None, :, 0] + off_all[:, None, 0], rel[None, :, 1] + off_all[:, None, 1])
+    adm = in_pat_all.mean(axis=1) >= options.min_inside_fraction
+    if not adm.any():
+        stats["out_of_pattern"] += 1
+        return _Choice("no_admissible_offset")
+    cands = set(map(tuple, off_all[adm].tolist()))
     off = np.array(sorted(cands), np.int64)  # (C, 2)
     ii = rel[None, :, 0] + off[:, None, 0]
     jj = rel[None, :, 1] + off[:, None, 1]
-    res = _epipolar_residual_px(model, ln[None, ok_line], ii[:, ok_line], jj[:, ok_line])
+    in_pat = model.in_pattern(ii, jj)
+    iic = np.clip(ii, model.index_min, model.index_max)
+    jjc = np.clip(jj, model.index_min, model.index_max)
+    res = _epipolar_residual_px(model, ln[None, ok_line], iic[:, ok_line], jjc[:, ok_line])
+    res = np.where(in_pat[:, ok_line], res, np.inf)
     score = np.minimum(res * res, cap2).mean(axis=1)
     ranked = np.argsort(score, kind="stable")
     # Walk the ranking: the first two offsets that put the surface inside the working volume.
     passing: list[tuple[int, np.ndarray]] = []
     for c in ranked[: min(len(ranked), 16)].tolist():
-        xy_p = model.junction_xy(ii[c], jj[c])
+        xy_p = model.junction_xy(iic[c], jjc[c])
         p, _ = triangulate_rays(model.procam, xy_cam, xy_p)
         z = depth_cam(model.procam, p)
-        inside = (z >= options.depth_min_mm) & (z <= options.depth_max_mm)
+        inside = (z >= options.depth_min_mm) & (z <= options.depth_max_mm) & in_pat[c]
         if inside.mean() >= options.min_inside_fraction:
             passing.append((c, inside))
             if len(passing) == 2:
@@ -236,11 +242,26 @@ def _choose_offset(model: RigModel, rel: np.ndarray, ln: np.ndarray, xy_cam: np.
     n_eff = int(ok_line.sum())
     sigma2 = max(s1, options.noise_floor_px**2)
     rms = (float(np.sqrt(s1)), float(np.sqrt(s2)))
-    if n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2 or s2 < options.min_rms_ratio**2 * sigma2:
-        return _Choice("ambiguous", rms=rms)
     lab = np.column_stack([ii[best], jj[best]])
-    r_full = _epipolar_residual_px(model, ln, lab[:, 0], lab[:, 1])
+    r_full = _epipolar_residual_px(model, ln, iic[best], jjc[best])
+    r_full[~in_pat[best]] = np.nan
+    if n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2 or s2 < options.min_rms_ratio**2 * sigma2:
+        # A component that mixes two surfaces (a bad edge) looks ambiguous as a whole: each offset fits one
+        # part. Judge the best offset on its own inliers; if it wins there, the rest is split off later.
+        inl = np.isfinite(r_full) & (r_full <= _outlier_limit(r_full, options))
+        if not _inlier_retry or inl.all() or inl.sum() < options.min_split_component:
+            return _Choice("ambiguous", rms=rms)
+        sub = _choose_offset(model, rel[inl], ln[inl], xy_cam[inl], options, stats, _inlier_retry=False)
+        if sub.reason is not None or not np.array_equal(sub.labels[0] - rel[inl][0], lab[0] - rel[0]):
+            return _Choice("ambiguous", rms=rms)
     return _Choice(None, lab, r_full, inside, rms)
+
+
+def _outlier_limit(r: np.ndarray, options: LabelOptions) -> float:
+    """max(outlier_sigma·σ̂, max_residual_px), σ̂ = 1.4826·median|r| (half-normal: median |r| = 0.674 σ)."""
+    fin = np.isfinite(r)
+    sigma_hat = 1.4826 * float(np.median(r[fin])) if fin.any() else np.inf
+    return max(options.outlier_sigma * sigma_hat, options.max_residual_px)
 
 
 def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *, options: LabelOptions = LabelOptions()) -> Labels:
@@ -287,10 +308,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             continue
         r = ch.residual
         fin = np.isfinite(r)
-        # Robust residual scale (half-normal: median |r| = 0.674 σ) and the outlier limit.
-        sigma_hat = 1.4826 * float(np.median(r[fin])) if fin.any() else np.inf
-        limit = max(options.outlier_sigma * sigma_hat, options.max_residual_px)
-        bad = ~fin | (r > limit) | ~ch.inside
+        bad = ~fin | (r > _outlier_limit(r, options)) | ~ch.inside
         good = ~bad
         labels[members[good]] = ch.labels[good]
         residual[members[good]] = r[good]
@@ -359,9 +377,84 @@ def find_triangles(obs: GridObservation) -> np.ndarray:
     return np.array(tris, np.int64).reshape(-1, 3)
 
 
+def triangle_shape(pattern, gap_i: float, gap_j: float) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 2 generalised: offsets h, v (3,) of the vertices (i, j), (i+1, j), (i+1, j+1) from the base
+    vertex, when line i+1 is gap_i after line i and line j+1 gap_j after line j (projector px). For the
+    uniform grid (gap_i = gap_j = p) this is the paper's h = (0, p/(n2−n1), 0), v = (0, n2·p/(n2−n1), p)."""
+    n1, n2 = pattern.n1, pattern.n2
+    d = n2 - n1
+    h = np.array([0.0, gap_i / d, (gap_i - gap_j) / d])
+    v = np.array([0.0, n2 * gap_i / d, (n2 * gap_i - n1 * gap_j) / d])
+    return h, v
+
+
+def _paper_uniform(pat, model: RigModel, m: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's base point and snap on the uniform grid: base points (T, 2) and labels (T, 2)."""
+    p, n1, n2 = pat.pitch_px, pat.n1, pat.n2
+    h, v = triangle_shape(pat, p, p)
+    base = solve_base_point(m, b, h, v)
+    # Snap: nearest junction of the (uniform) grid whose triangle lies inside the pattern.
+    with np.errstate(invalid="ignore"):
+        fi = (base[:, 1] - n1 * base[:, 0]) / p
+        fj = (base[:, 1] - n2 * base[:, 0]) / p
+    best = np.full((len(m), 2), UNLABELLED, np.int64)
+    bestd = np.full(len(m), np.inf)
+    lo, hi = model.index_min, model.index_max - 1
+    for di in (0, 1):
+        for dj in (0, 1):
+            I = np.clip(np.floor(fi) + di, lo, hi)
+            J = np.clip(np.floor(fj) + dj, lo, hi)
+            I = np.where(np.isfinite(I), I, lo).astype(np.int64)
+            J = np.where(np.isfinite(J), J, lo).astype(np.int64)
+            xy = pat.junction_xy(I, J)
+            dist = np.hypot(xy[:, 0] - base[:, 0], xy[:, 1] - base[:, 1])
+            better = dist < bestd
+            best[better] = np.column_stack([I, J])[better]
+            bestd[better] = dist[better]
+    return base, best
+
+
+def _paper_general(pat, model: RigModel, m: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's method on a grid whose spacings vary (De Bruijn): the triangle's shape depends on the
+    two gaps after its base lines, so the 2×2 system is solved once per distinct shape, each base point
+    is snapped to the nearest base junction of a triangle of that shape, and the nearest snap over all
+    shapes wins. Returns base points (T, 2) of the winning shape and labels (T, 2)."""
+    idx = pat.indices
+    gi = np.round(np.diff(pat.offsets_px(1)), 6)
+    gj = np.round(np.diff(pat.offsets_px(2)), 6)
+    T = len(m)
+    best = np.full((T, 2), UNLABELLED, np.int64)
+    bestd = np.full(T, np.inf)
+    base_best = np.full((T, 2), np.nan)
+    for a in np.unique(gi).tolist():
+        for c in np.unique(gj).tolist():
+            I = idx[:-1][gi == a]
+            J = idx[:-1][gj == c]
+            if len(I) == 0 or len(J) == 0:
+                continue
+            II, JJ = np.meshgrid(I, J, indexing="ij")
+            xy = pat.junction_xy(II.ravel(), JJ.ravel())
+            h, v = triangle_shape(pat, a, c)
+            base = solve_base_point(m, b, h, v)
+            ok = np.isfinite(base).all(axis=1)
+            if not ok.any():
+                continue
+            dist, k = cKDTree(xy).query(base[ok])
+            rows = np.flatnonzero(ok)
+            better = dist < bestd[rows]
+            r = rows[better]
+            best[r, 0] = II.ravel()[k[better]]
+            best[r, 1] = JJ.ravel()[k[better]]
+            bestd[r] = dist[better]
+            base_best[r] = base[r]
+    return base_best, best
+
+
 def label_paper(obs: GridObservation, model: RigModel, xy_cam: np.ndarray) -> Labels:
     """The paper's labeller (module doc). Works in the paper's projector-plane coordinates: undistorted
-    projector pixels relative to the pattern centre (X = f_x·x + c_x − c_u, Y = f_y·y + c_y − c_v)."""
+    projector pixels relative to the pattern centre (X = f_x·x + c_x − c_u, Y = f_y·y + c_y − c_v).
+    With De Bruijn spacing the triangle's shape (Eq. 2) depends on its gaps: one 2×2 solve per shape, the
+    nearest snap over all shapes wins (`_paper_general`)."""
     M = len(obs.q_junction)
     labels = np.full((M, 2), UNLABELLED, np.int64)
     residual = np.full(M, np.nan)
@@ -377,28 +470,10 @@ def label_paper(obs: GridObservation, model: RigModel, xy_cam: np.ndarray) -> La
     oy = proj.cy - pat.centre_px[1]
     m_px = m_n * proj.fy / proj.fx
     b_px = proj.fy * b_n - m_px * ox + oy
-    p, n1, n2 = pat.pitch_px, pat.n1, pat.n2
-    # Eq. 2 for (i, j), (i+1, j), (i+1, j+1): offsets of p1, p2 from p0.
-    h = np.array([0.0, p / (n2 - n1), 0.0])
-    v = np.array([0.0, n2 * p / (n2 - n1), p])
-    base = solve_base_point(m_px[tris], b_px[tris], h, v)
-    # Snap: nearest junction of the (uniform) grid whose triangle lies inside the pattern.
-    fi = (base[:, 1] - n1 * base[:, 0]) / p
-    fj = (base[:, 1] - n2 * base[:, 0]) / p
-    best = np.full((len(tris), 2), UNLABELLED, np.int64)
-    bestd = np.full(len(tris), np.inf)
-    lo, hi = model.index_min, model.index_max - 1
-    for di in (0, 1):
-        for dj in (0, 1):
-            I = np.clip(np.floor(fi) + di, lo, hi)
-            J = np.clip(np.floor(fj) + dj, lo, hi)
-            I = np.where(np.isfinite(I), I, lo).astype(np.int64)
-            J = np.where(np.isfinite(J), J, lo).astype(np.int64)
-            xy = pat.junction_xy(I, J)
-            dist = np.hypot(xy[:, 0] - base[:, 0], xy[:, 1] - base[:, 1])
-            better = dist < bestd
-            best[better] = np.column_stack([I, J])[better]
-            bestd[better] = dist[better]
+    if pat.spacing == "uniform":
+        base, best = _paper_uniform(pat, model, m_px[tris], b_px[tris])
+    else:
+        base, best = _paper_general(pat, model, m_px[tris], b_px[tris])
     ok = np.isfinite(base).all(axis=1)
     # Votes: junction -> label counts.
     votes: dict[int, dict[tuple[int, int], int]] = {}
