@@ -3,8 +3,9 @@
     .venv/bin/python -m benchmarks.bench_reconstruction [--quick] [--repeat N]
 
 Scenes: the simulator's presets (the paper's three camera configurations at 758x570, the 1280x1024
-tabletop rig) and a well-posed 1280x1024 rig (`converged-1280`), sensor noise 2 grey levels, lens
-distortion where the preset has it. Both labellers run on the same images. Writes
+tabletop rig) and a well-posed 1280x1024 rig with lens distortion on both devices (`converged-1280`),
+also with 4 grey levels of noise, with a second pitch and angle pair, and with De Bruijn spacing; sensor
+noise 2 grey levels unless the name says otherwise. Both labellers run on the same images. Writes
 benchmarks/results/bench_reconstruction.md.
 
 Metrics (per scene and labeller):
@@ -13,7 +14,8 @@ Metrics (per scene and labeller):
 - relative 3-D error of every point: |p − p_true| / |p_true| (p_true: the true surface point seen through
   the same sub-pixel camera position, bilinear), median, 99th percentile, share above 1 % (mislabelled);
 - coverage: share of the visible, lit line-centre pixels (true projector position within half a camera
-  pixel of a line's centre) that have a reconstructed point within 1.5 camera px;
+  pixel of a line's centre, on the drawn part of the line) that have a reconstructed point within 1.5
+  camera px;
 - time per stage (ms, median of --repeat runs, one OpenCV thread).
 """
 
@@ -42,7 +44,8 @@ def _sample(a: np.ndarray, q: np.ndarray) -> np.ndarray:
     return cv2.remap(a.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderValue=np.nan).reshape(len(q), -1)
 
 
-def converged_1280():
+def converged_1280(*, pitch_px: float = 22.0, alpha1_deg: float = 30.0, alpha2_deg: float = 120.0, spacing: str = "uniform"):
+    """A well-posed 1280x1024 rig with lens distortion on both devices: a tilted plane, a sphere, a box."""
     from drivers.sim import Plane, Scene, Sphere, Box
 
     cam = Intrinsics(1280, 1024, np.array([[1800.0, 0, 639.5], [0, 1800.0, 511.5], [0, 0, 1]]), np.array([-0.06, 0.05, 0, 0, 0]))
@@ -54,11 +57,14 @@ def converged_1280():
         Sphere(np.array([40.0, 20.0, 850.0]), 110.0),
         Box((-150.0, 80.0, 900.0), (120.0, 120.0, 120.0), np.eye(3)),
     ])
-    pattern = GridPattern(pitch_px=22.0, lines=31, centre_px=(511.5, 383.5), line_width_px=3.0)
+    lines = int(2 * (330.0 // pitch_px) + 1)
+    pattern = GridPattern(pitch_px=pitch_px, lines=lines, centre_px=(511.5, 383.5), line_width_px=3.0,
+                          alpha1_deg=alpha1_deg, alpha2_deg=alpha2_deg, spacing=spacing)
     return procam, scene, pattern, (600.0, 1400.0)
 
 
-def scenes(quick: bool):
+def scenes(quick: bool, noise: float):
+    """(name, procam, scene, pattern, depth range, noise grey levels) of every benchmark scene."""
     from drivers.sim import preset
 
     out = []
@@ -67,9 +73,17 @@ def scenes(quick: bool):
         names = ["paper-intermediate"]
     for name in names:
         rig = preset(name)
-        out.append((name, rig.procam, rig.scene, GridPattern(), rig.depth_range_mm))
-    procam, scene, pattern, dr = converged_1280()
-    out.append(("converged-1280", procam, scene, pattern, dr))
+        out.append((name, rig.procam, rig.scene, GridPattern(), rig.depth_range_mm, noise))
+    variants = [("converged-1280", {}, noise)]
+    if not quick:
+        variants += [
+            ("converged-1280 noise 4", {}, 4.0),
+            ("converged-1280 pitch 16, 25/115 deg", {"pitch_px": 16.0, "alpha1_deg": 25.0, "alpha2_deg": 115.0}, noise),
+            ("converged-1280 De Bruijn", {"spacing": "debruijn"}, noise),
+        ]
+    for name, kw, nz in variants:
+        procam, scene, pattern, dr = converged_1280(**kw)
+        out.append((name, procam, scene, pattern, dr, nz))
     return out
 
 
@@ -144,8 +158,23 @@ def evaluate(image, truth, procam, pattern, depth_range, labeller: str, repeat: 
         "coverage": coverage(truth, pattern, res.q_cam) * 100,
         "ms": ms,
         "warnings": res.warnings,
+        "left_out": res.stats["junctions_left_out"],
+        "split": res.stats.get("components_split", 0),
         "size": f"{image.shape[1]}x{image.shape[0]}",
     }
+
+
+def _tree_state() -> str:
+    """Which reconstruction sources differ from the last commit (the table measures the working tree)."""
+    import subprocess
+
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "reconstruction"], capture_output=True, text=True, check=True).stdout.split("\n")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown (no git)"
+    mod = [ln[3:] for ln in dirty if ln.strip()]
+    return f"commit {head}" + (f", with uncommitted changes to {', '.join(mod)}" if mod else ", clean")
 
 
 def main() -> None:
@@ -158,13 +187,14 @@ def main() -> None:
     from drivers.sim import RenderOptions, render
 
     rows = []
-    for name, procam, scene, pattern, dr in scenes(args.quick):
+    for name, procam, scene, pattern, dr, noise in scenes(args.quick, args.noise):
         t0 = time.perf_counter()
         img, truth = render(procam, scene, pattern.render(procam.projector.width, procam.projector.height),
-                            options=RenderOptions(noise_grey=args.noise), rng=np.random.default_rng(0))
+                            options=RenderOptions(noise_grey=noise), rng=np.random.default_rng(0))
         print(f"{name}: rendered in {time.perf_counter() - t0:.1f} s", flush=True)
         for labeller in ("epipolar", "paper"):
             r = evaluate(img, truth, procam, pattern, dr, labeller, args.repeat)
+            r["noise"] = noise
             rows.append((name, labeller, r))
             print(name, labeller, {k: v for k, v in r.items() if k != "warnings"}, flush=True)
     lines = [
@@ -175,16 +205,25 @@ def main() -> None:
         "Relative error: |p − p_true| / |p_true| in %; >1 %: share of points more than 1 % off (mislabelled);",
         "label ok: labelled junctions within 2 projector px of the true junction; coverage: lit line-centre pixels with a point within 1.5 px.",
         "",
-        "| scene | camera | labeller | junctions found | labelled | label ok | points | median % | p99 % | >1 % share | coverage % | extract ms | label ms | triangulate ms | total ms |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        f"Working tree: {_tree_state()}.",
+        "",
+        "| scene | camera | noise | labeller | junctions found | labelled | label ok | points | median % | p99 % | >1 % share | coverage % | extract ms | label ms | triangulate ms | total ms |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, labeller, r in rows:
         m = r["ms"]
         lines.append(
-            f"| {name} | {r['size']} | {labeller} | {r['found']} | {r['labelled']} | {100 * r['label_ok']:.1f} % | {r['points']} | "
+            f"| {name} | {r['size']} | {r['noise']:g} | {labeller} | {r['found']} | {r['labelled']} | {100 * r['label_ok']:.1f} % | {r['points']} | "
             f"{r['median']:.4f} | {r['p99']:.3f} | {r['over1']:.2f} | {r['coverage']:.1f} | {m['extract']:.1f} | {m['label']:.1f} | "
             f"{m['triangulate']:.1f} | {m['total']:.1f} |"
         )
+    lines.append("")
+    lines.append("Junctions left out per scene (epipolar labeller), by reason:")
+    lines.append("")
+    for name, labeller, r in rows:
+        if labeller == "epipolar":
+            lo = {k: v for k, v in r["left_out"].items() if v}
+            lines.append(f"- {name}: {lo or 'none'}; components split at outliers: {r['split']}")
     lines.append("")
     lines.append("Warnings per scene (epipolar labeller):")
     lines.append("")

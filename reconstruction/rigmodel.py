@@ -137,9 +137,9 @@ class RigModel:
         lines (family (N,) 1 or 2, index (N,)).
 
         A line is straight in projector pixels, so with projector distortion its sheet of light is slightly
-        curved. First the plane through the line's two ends; then, `iterations` times, the plane through the
-        line's points half a crossing either side of where the previous point projects (the local chord of
-        the sheet). Without projector distortion the first plane is exact. NaN where the ray misses.
+        curved. First the plane through the line's two ends; then, `iterations` times, the sheet's tangent
+        plane where the previous point projects (through the rays of the line's points 0.02 crossings either
+        side). Without projector distortion the first plane is exact. NaN where the ray misses.
         """
         family = np.asarray(family)
         index = np.asarray(index, np.float64)
@@ -156,7 +156,8 @@ class RigModel:
             uv[ok] = self.procam.projector.project(p[ok])
             other = self.fractional_index(other_family, uv)
             other = np.where(np.isfinite(other), other, 0.5 * (self.index_min + self.index_max))
-            p = intersect_planes(self.procam, xy_cam, self.light_plane_normals(family, index, other))
+            # the sheet's tangent plane there: through the rays of the line's points a short step either side
+            p = intersect_planes(self.procam, xy_cam, self._plane_through(family, index, other - 0.02, other + 0.02))
         return p
 
 
