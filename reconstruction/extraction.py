@@ -344,25 +344,46 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     stats["junction_core_px"] = r0 * scale
     reasons = {"too_few_samples": 0, "not_through": 0, "parallel": 0, "off_centre": 0, "crooked": 0, "duplicate": 0}
 
+    cs = float(np.clip(r0 / 1.5, 1.0, 2.0))  # cell of the lookup grids below (working px)
+    gsh2 = (int(Hw / cs) + 2, int(Ww / cs) + 2)
+
     def stamp(centres: np.ndarray, radius: float) -> np.ndarray:
-        """Flat (Hw·Ww,) int32 image holding, within `radius` of each centre, the centre's index (−1 elsewhere)."""
-        img_ = np.full(Hw * Ww, -1, np.int32)
-        rr = int(np.ceil(radius))
+        """(gh, gw) int32 grid of cells of `cs` px holding the index of the centre nearest to the cell's
+        centre, if within `radius` + one cell, −1 elsewhere (a Voronoi partition restricted to disks).
+        Callers check exact distances."""
+        grid = np.full(gsh2, -1, np.int32)
+        if len(centres) == 0:
+            return grid
+        rr = int(np.ceil(radius / cs)) + 1
         oy_, ox_ = np.mgrid[-rr : rr + 1, -rr : rr + 1]
-        disk = ox_**2 + oy_**2 <= radius * radius
+        disk = (ox_**2 + oy_**2) * cs * cs <= (radius + cs) ** 2
         ox_, oy_ = ox_[disk], oy_[disk]
-        cu_ = np.rint(centres[:, 0]).astype(np.intp)[:, None] + ox_
-        cv_ = np.rint(centres[:, 1]).astype(np.intp)[:, None] + oy_
-        inside_ = (cu_ >= 0) & (cu_ < Ww) & (cv_ >= 0) & (cv_ < Hw)
-        ids_ = np.broadcast_to(np.arange(len(centres), dtype=np.int32)[:, None], cu_.shape)
-        img_[(cv_ * Ww + cu_)[inside_]] = ids_[inside_]
-        return img_
+        cu_ = (centres[:, 0] / cs).astype(np.intp)[:, None] + ox_
+        cv_ = (centres[:, 1] / cs).astype(np.intp)[:, None] + oy_
+        inside_ = (cu_ >= 0) & (cu_ < gsh2[1]) & (cv_ >= 0) & (cv_ < gsh2[0])
+        d_ = np.hypot((cu_ + 0.5) * cs - centres[:, 0:1], (cv_ + 0.5) * cs - centres[:, 1:2]).astype(np.float32)
+        flat = (cv_ * gsh2[1] + cu_)[inside_]
+        d_ = d_[inside_]
+        ids_ = np.broadcast_to(np.arange(len(centres), dtype=np.int32)[:, None], cu_.shape)[inside_]
+        best = np.full(gsh2[0] * gsh2[1], np.inf, np.float32)
+        np.minimum.at(best, flat, d_)
+        win = d_ <= best[flat]
+        grid.ravel()[flat[win]] = ids_[win]
+        return grid
+
+    def look(grid: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        cu_ = np.clip((pts[:, 0] / cs).astype(np.intp), 0, gsh2[1] - 1)
+        cv_ = np.clip((pts[:, 1] / cs).astype(np.intp), 0, gsh2[0] - 1)
+        return grid[cv_, cu_].astype(np.intp)
 
     # sub-pixel candidates: the score-weighted centroid of the crossing pixels around each maximum (a
     # crossing is point-symmetric, so is its blob)
+    seed_grid = stamp(seeds, r_att + 1.5)
     if len(seeds):
-        lab_x = stamp(seeds, max(r0, 1.5))[xv * Ww + xu]
+        xq = np.column_stack([xu, xv]).astype(np.float64)
+        lab_x = look(seed_grid, xq)
         okx = lab_x >= 0
+        okx[okx] = np.hypot(*(xq[okx] - seeds[lab_x[okx]]).T) <= max(r0, 1.5)
         wsum = np.bincount(lab_x[okx], weights=xs[okx], minlength=len(seeds))
         seeds = np.column_stack([
             np.bincount(lab_x[okx], weights=xs[okx] * xu[okx], minlength=len(seeds)),
@@ -373,22 +394,23 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     near = np.full(P, -1, np.intp)
     dist = np.full(P, np.inf)
     if len(seeds) and P:
-        st_img = stamp(seeds, r_att)
-        near = st_img[v * Ww + u].astype(np.intp)
+        near = look(seed_grid, q)
         has = near >= 0
         dist[has] = np.hypot(*(q[has] - seeds[near[has]]).T)
+        near[dist > r_att] = -1
+        has = near >= 0
         ring = has & (dist > r0)
         n_ring = np.bincount(2 * near[ring] + fam[ring] - 1, minlength=2 * len(seeds)).reshape(-1, 2)
         crossing = (n_ring >= 2).all(axis=1)
         reasons["too_few_samples"] = int((~crossing).sum())
+        remap_seed = np.full(len(seeds) + 1, -1, np.intp)
+        remap_seed[np.nonzero(crossing)[0]] = np.arange(int(crossing.sum()))
         seeds, seed_score = seeds[crossing], seed_score[crossing]
+        near = remap_seed[near]
+        dist[near < 0] = np.inf
+        seed_grid = stamp(seeds, r_att + 1.5)
     ns = len(seeds)
-    core = np.zeros(P, bool)
-    if ns and P:
-        core_img = stamp(seeds, r0)
-        kc = core_img[v * Ww + u].astype(np.intp)
-        core = kc >= 0
-        core[core] = np.hypot(*(q[core] - seeds[kc[core]]).T) <= r0
+    core = dist <= r0
 
     # --- 5a. segments: link samples outside the crossings' cores along their line -------------------------
     fidx = np.nonzero(~core)[0]
@@ -444,7 +466,6 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     if S and ns:
         # walk from each end outwards; the first candidate within `r_side` of the walk is the one it reaches
         r_side = 1.5 + 0.75 * s_w
-        side_img = stamp(seeds, r_side)
         probes = np.arange(0.0, r_att + 0.5, 0.75)
         for k, (sv_, sgn) in enumerate(((smin, -1.0), (smax, 1.0))):
             # the end sample itself and its own tangent, pointing away from the segment
@@ -459,8 +480,11 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
             iu = np.rint(pu).astype(np.intp)
             iv = np.rint(pv).astype(np.intp)
             inside = (iu >= 0) & (iu < Ww) & (iv >= 0) & (iv < Hw)
-            hit = np.full(iu.shape, -1, np.intp)
-            hit[inside] = side_img[iv[inside] * Ww + iu[inside]]
+            pp = np.column_stack([pu.ravel(), pv.ravel()])
+            hit = look(seed_grid, pp)
+            okh = hit >= 0
+            okh[okh] = np.hypot(*(pp[okh] - seeds[hit[okh]]).T) <= r_side
+            hit = np.where(okh, hit, -1).reshape(iu.shape)
             first = np.argmax(hit >= 0, axis=1)
             kk = hit[np.arange(S), first]
             ok_ = kk >= 0
@@ -570,7 +594,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     biased = np.concatenate(biased) if len(biased) > 1 else biased[0]
     if len(biased) and P:
         r_bias = r0 + s_w
-        kb = stamp(biased, r_bias)[v * Ww + u]
+        kb = look(stamp(biased, r_bias), q)
         nb = kb >= 0
         nb[nb] = np.hypot(*(q[nb] - biased[kb[nb]]).T) <= r_bias
         seg_out[nb & (sample_junction < 0)] = -1
