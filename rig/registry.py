@@ -94,7 +94,15 @@ def open_rig(cfg: RigConfig, *, transcript: Path | None = None) -> Iterator[Open
             from drivers.sim import SimWorld
 
             world = SimWorld(sim_rig_from_config(cfg), options=render_options(cfg), seed=cfg.sim.seed)
-        projector = stack.enter_context(_open_projector(cfg, world=world, transcript=transcript))
+            if cfg.camera.device == "sim":
+                world.geometry  # ray-cast now, not inside the first grab's deadline  # noqa: B018
+        writer = None
+        if transcript is not None and cfg.projector.port != "sim":
+            from drivers.serial import TranscriptWriter
+
+            writer = TranscriptWriter(transcript)
+            stack.callback(writer.close)  # after the projector is closed (ExitStack unwinds in reverse)
+        projector = stack.enter_context(_open_projector(cfg, world=world, transcript=writer))
         camera = stack.enter_context(_open_camera(cfg, world=world, projector=projector))
         if (camera.width, camera.height) != (procam.camera.width, procam.camera.height):
             raise ConfigError(
@@ -104,24 +112,23 @@ def open_rig(cfg: RigConfig, *, transcript: Path | None = None) -> Iterator[Open
         yield OpenRig(projector=projector, camera=camera, procam=procam, calibration_source=source, sim=world)
 
 
-def _open_projector(cfg: RigConfig, *, world, transcript: Path | None):
+def _open_projector(cfg: RigConfig, *, world, transcript):
     port = cfg.projector.port
     if port == "sim":
         from drivers.sim import SimProjector
 
         return SimProjector(world)
-    from drivers.serial import SerialProjector, TranscriptWriter, open_transport
+    from drivers.serial import SerialProjector, open_transport
 
     def reopen():
         return open_transport(port, baudrate=cfg.projector.baudrate)
 
-    writer = TranscriptWriter(transcript) if transcript is not None else None
     proj = SerialProjector(
         reopen(),
         timeout_s=cfg.projector.timeout_ms / 1000.0,
         retries=cfg.projector.retries,
         reopen=reopen,
-        transcript=writer,
+        transcript=transcript,
     )
     try:
         proj.hello()
