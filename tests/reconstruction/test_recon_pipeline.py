@@ -116,3 +116,66 @@ def test_inconsistent_inputs_raise_with_the_fix(small_scene):
     too_big = GridPattern(pitch_px=60.0, lines=33, centre_px=(399.5, 299.5))
     with pytest.raises(ReconstructionError, match="does not fit the projector"):
         reconstruct(s.image, s.procam, too_big)
+
+
+def test_line_samples_cover_the_visible_lines_with_the_right_index(small_scene):
+    # Every labelled sample is on the line it is labelled with (simulator truth), samples far from any
+    # labelled junction (end segments to the border, a shadow or the sphere's silhouette) are labelled too,
+    # and most of the visible, lit line pixels end up as points.
+    s = small_scene
+    rec = reconstruct(s.image, s.procam, s.pattern, options=ReconstructOptions(depth_min_mm=s.depth_range_mm[0], depth_max_mm=s.depth_range_mm[1]))
+    smp = rec.family > 0
+    q = rec.q_cam[smp].astype(np.float64)
+    qp = _sample(s.truth.q_proj, q)
+    x = qp[:, 0] - s.pattern.centre_px[0]
+    y = qp[:, 1] - s.pattern.centre_px[1]
+    fam = rec.family[smp]
+    n = np.where(fam == 1, s.pattern.n1, s.pattern.n2)
+    true_index = (y - n * x) / s.pattern.pitch_px
+    own = np.where(fam == 1, rec.label[smp, 0], rec.label[smp, 1])
+    known = np.isfinite(true_index)
+    assert np.mean(np.abs(true_index[known] - own[known]) < 0.3) > 0.995
+    # End segments: samples beyond the outermost labelled junction of their line (towards the image border,
+    # a shadow or an occlusion), which no segment between two labelled junctions holds.
+    jl = rec.junction_labels
+    beyond = 0
+    for f in (1, 2):
+        for k in np.unique(own[fam == f]).tolist():
+            on = (fam == f) & (own == k)
+            js = rec.junctions_cam[jl[:, f - 1] == k].astype(np.float64)
+            if len(js) < 2 or on.sum() < 2:
+                continue
+            c = q[on].mean(axis=0)
+            u = np.linalg.svd(q[on] - c)[2][0]
+            t = (q[on] - c) @ u
+            tj = (js - c) @ u
+            beyond += int(np.sum((t < tj.min() - 3) | (t > tj.max() + 3)))
+    assert beyond > 300, beyond
+    assert _coverage(s.truth, s.pattern, rec.q_cam.astype(np.float64)) > 0.7
+    # Per-frame accounting: every junction found is labelled or left out for a named reason.
+    st = rec.stats
+    assert st["junctions_labelled"] + sum(st["junctions_left_out"].values()) == st["junctions_found"]
+    assert st["samples_labelled"] >= int(smp.sum()) > 5000
+
+
+def _coverage(truth, pattern: GridPattern, q_cam: np.ndarray) -> float:
+    """Share of the visible, lit line-centre pixels (uniform grid, drawn part of the lines) with a point
+    within 1.5 px (the benchmark's measure, benchmarks/bench_reconstruction.py)."""
+    q = truth.q_proj.astype(np.float64)
+    x = q[..., 0] - pattern.centre_px[0]
+    y = q[..., 1] - pattern.centre_px[1]
+    scale = np.maximum(np.linalg.norm(np.gradient(q, axis=1), axis=2), np.linalg.norm(np.gradient(q, axis=0), axis=2))
+    lo, hi = pattern.indices[0], pattern.indices[-1]
+    c = {1: (y - pattern.n1 * x) / pattern.pitch_px, 2: (y - pattern.n2 * x) / pattern.pitch_px}
+    half = 0.5 * pattern.line_width_px / pattern.pitch_px
+    target = np.zeros(x.shape, bool)
+    for f, n in ((1, pattern.n1), (2, pattern.n2)):
+        k = np.clip(np.rint(c[f]), lo, hi)
+        d = np.abs(c[f] - k) * pattern.pitch_px / np.hypot(1, n)
+        o = c[3 - f]
+        target |= (d <= 0.5 * scale) & (o >= lo - half) & (o <= hi + half)
+    with np.errstate(invalid="ignore"):
+        target &= truth.lit & np.isfinite(scale)
+    mask = np.full(target.shape, 255, np.uint8)
+    mask[np.clip(np.rint(q_cam[:, 1]).astype(int), 0, target.shape[0] - 1), np.clip(np.rint(q_cam[:, 0]).astype(int), 0, target.shape[1] - 1)] = 0
+    return float((cv2.distanceTransform(mask, cv2.DIST_L2, 3)[target] <= 1.5).mean())
