@@ -107,9 +107,10 @@ def config_from_dict(data: dict[str, Any], *, source: Path | None = None) -> Rig
         data["calibration"] = _resolve(base, data["calibration"])
     if isinstance(data.get("sim"), dict) and "truth" in data["sim"]:
         data["sim"] = {**data["sim"], "truth": _resolve(base, data["sim"]["truth"])}
-    cam = data.get("camera")
-    if isinstance(cam, dict) and isinstance(cam.get("device"), str) and cam["device"].startswith("replay:"):
-        data["camera"] = {**cam, "device": "replay:" + str(_resolve(base, cam["device"][len("replay:") :]))}
+    for section, key in (("camera", "device"), ("projector", "port")):
+        sec = data.get(section)
+        if isinstance(sec, dict) and isinstance(sec.get(key), str) and sec[key].startswith("replay:"):
+            data[section] = {**sec, key: "replay:" + str(_resolve(base, sec[key][len("replay:") :]))}
     data["source"] = source
     try:
         return RigConfig.model_validate(data)

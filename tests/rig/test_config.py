@@ -28,11 +28,13 @@ def test_paths_are_relative_to_the_file(tmp_path):
     sub.mkdir()
     (sub / "rig.toml").write_text(
         'calibration = "cal/calibration.json"\n[camera]\ndevice = "replay:captures/one"\n[sim]\ntruth = "truth.json"\n'
+        '[projector]\nport = "replay:captures/one/serial.jsonl"\n'
     )
     cfg = load_config(sub / "rig.toml")
     assert cfg.calibration == sub / "cal" / "calibration.json"
     assert cfg.camera.device == f"replay:{sub / 'captures' / 'one'}"
     assert cfg.sim.truth == sub / "truth.json"
+    assert cfg.projector.port == f"replay:{sub / 'captures' / 'one' / 'serial.jsonl'}"
     assert cfg.source == (sub / "rig.toml").resolve()
 
 
