@@ -53,6 +53,8 @@ class ExtractOptions:
         junctions (camera px).
     max_junction_offset_px: the fitted intersection may be this far from the crossing candidate
         (camera px, at least a third of the junction core).
+    max_arm_turn_deg: a junction's fitted line may differ from its samples' own directions by this much
+        on average (more: the line jumps sideways at the crossing, a depth edge).
     downsample_sigma_px: smoothing scales at or above this are computed on a half-resolution image
         (wide lines; the samples are still about two camera pixels apart).
     """
@@ -66,6 +68,7 @@ class ExtractOptions:
     max_segment_rms_px: float = 0.6
     max_junction_offset_px: float = 1.5
     downsample_sigma_px: float = 2.6
+    max_arm_turn_deg: float = 6.0
     debug: bool = False
 
 
@@ -344,7 +347,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     stats["junction_core_px"] = r0 * scale
     reasons = {"too_few_samples": 0, "not_through": 0, "parallel": 0, "off_centre": 0, "crooked": 0, "duplicate": 0}
 
-    cs = float(np.clip(r0 / 1.5, 1.0, 2.0))  # cell of the lookup grids below (working px)
+    cs = 2.0  # cell of the lookup grids below (working px)
     gsh2 = (int(Hw / cs) + 2, int(Ww / cs) + 2)
 
     def stamp(centres: np.ndarray, radius: float) -> np.ndarray:
@@ -530,15 +533,27 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         s = np.einsum("ij,ij->i", qa - seeds[grp // 2], dr[grp])
         n_neg = np.bincount(grp, weights=s < -0.5, minlength=2 * ns).reshape(ns, 2)
         n_pos = np.bincount(grp, weights=s > 0.5, minlength=2 * ns).reshape(ns, 2)
+        # a line that jumps sideways at the crossing (a depth edge: two surfaces' lines meeting) is no
+        # crossing: compare the mean signed offsets from the fit on both sides
+        sgn_off = (qa[:, 0] - cen[grp, 0]) * dr[grp, 1] - (qa[:, 1] - cen[grp, 1]) * dr[grp, 0]
+        m_neg = np.bincount(grp, weights=sgn_off * (s < -0.5), minlength=2 * ns).reshape(ns, 2) / np.maximum(n_neg, 1)
+        m_pos = np.bincount(grp, weights=sgn_off * (s > 0.5), minlength=2 * ns).reshape(ns, 2) / np.maximum(n_pos, 1)
+        jump = (np.abs(m_neg - m_pos) > options.max_segment_rms_px / scale).any(axis=1)
+        # ... and with few samples the fit turns to absorb such a jump: the samples' own directions
+        # (across-line normals) then disagree with the fitted direction
+        na = nrm[aidx][inl]
+        ang_ok = np.abs(na[:, 0] * dr[grp, 0] + na[:, 1] * dr[grp, 1])  # |sin| between fit and sample line
+        mean_sin = np.bincount(grp, weights=ang_ok, minlength=2 * ns).reshape(ns, 2) / np.maximum(cnt.reshape(ns, 2), 1)
+        jump |= (mean_sin > np.sin(np.deg2rad(options.max_arm_turn_deg))).any(axis=1)
         cen = cen.reshape(ns, 2, 2)
         dr = dr.reshape(ns, 2, 2)
         rms = rms.reshape(ns, 2)
         cnt = cnt.reshape(ns, 2)
         valid = np.ones(ns, bool)
-        few = (cnt < 4).any(axis=1)
+        few = (cnt < 3).any(axis=1)
         reasons["too_few_samples"] += int(few.sum())
         valid &= ~few
-        through = ((n_neg >= 2) & (n_pos >= 2)).all(axis=1)
+        through = ((n_neg >= 1) & (n_pos >= 1)).all(axis=1)
         reasons["not_through"] = int((valid & ~through).sum())
         valid &= through
         d1, d2 = dr[:, 0], dr[:, 1]
@@ -555,7 +570,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         reasons["off_centre"] = int((valid & offc).sum())
         valid &= ~offc
         rms_j = rms
-        crooked = (rms > options.max_segment_rms_px / scale).any(axis=1)
+        crooked = (rms > options.max_segment_rms_px / scale).any(axis=1) | jump
         reasons["crooked"] = int((valid & crooked).sum())
         valid &= ~crooked
         # two candidates on one crossing converge to one intersection: keep the stronger
@@ -635,6 +650,16 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     delta[:, 0] = np.where(fam_s == 2, s_other, 0)  # along a j-line, i changes
     delta[:, 1] = np.where(fam_s == 1, s_other, 0)  # along an i-line, j changes
     good = s_other != 0
+    # a crossing nobody detected lets a segment run on to the next junction: an edge about twice as long
+    # as its neighbour along the same line (at either end) skipped one; drop it
+    elen = np.hypot(*(q_junction[b_j] - q_junction[a_j]).T)
+    shortest = np.full((M + 1, 2), np.inf)
+    for ends_ in (a_j, b_j):
+        np.minimum.at(shortest, (ends_, fam_s.astype(np.intp) - 1), elen)
+    f_ = fam_s.astype(np.intp) - 1
+    skip = (elen > 1.6 * shortest[a_j, f_]) | (elen > 1.6 * shortest[b_j, f_])
+    stats["edges_skipping"] = int((good & skip).sum())
+    good &= ~skip
     edges = np.column_stack([a_j, b_j])[good]
     stats["edges"] = int(good.sum())
     t5 = time.perf_counter()
