@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
-from calibration.errors import ConfigError
+from calibration.errors import ConfigError, DeviceError
 from calibration.file import load_calibration
 from calibration.models import ProCam
 from drivers.base import Camera, Projector
@@ -94,8 +94,6 @@ def open_rig(cfg: RigConfig, *, transcript: Path | None = None) -> Iterator[Open
             from drivers.sim import SimWorld
 
             world = SimWorld(sim_rig_from_config(cfg), options=render_options(cfg), seed=cfg.sim.seed)
-            if cfg.camera.device == "sim":
-                world.geometry  # ray-cast now, not inside the first grab's deadline  # noqa: B018
         writer = None
         if transcript is not None and cfg.projector.port != "sim":
             from drivers.serial import TranscriptWriter
@@ -103,6 +101,8 @@ def open_rig(cfg: RigConfig, *, transcript: Path | None = None) -> Iterator[Open
             writer = TranscriptWriter(transcript)
             stack.callback(writer.close)  # after the projector is closed (ExitStack unwinds in reverse)
         projector = stack.enter_context(_open_projector(cfg, world=world, transcript=writer))
+        if world is not None and cfg.camera.device == "sim":
+            world.geometry  # ray-cast now, once the projector answered, not inside the first grab's deadline  # noqa: B018
         camera = stack.enter_context(_open_camera(cfg, world=world, projector=projector))
         if (camera.width, camera.height) != (procam.camera.width, procam.camera.height):
             raise ConfigError(
@@ -132,6 +132,12 @@ def _open_projector(cfg: RigConfig, *, world, transcript):
     )
     try:
         proj.hello()
+    except DeviceError as e:
+        proj.close()
+        raise type(e)(
+            f"{e} — no trigger board answered the handshake: check that its firmware speaks docs/protocol.md, "
+            f"the baud rate ([projector] baudrate = {cfg.projector.baudrate}) and the cable"
+        ) from e
     except BaseException:
         proj.close()
         raise

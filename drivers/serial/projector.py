@@ -780,5 +780,8 @@ class SerialProjector:
             except DeviceError as e:  # the reopen failed (port not back yet)
                 last = e
             if self.clock() >= deadline:
-                raise DeviceError(f"trigger board on {self.port}: {problem}; reconnecting failed too: {last}") from last
+                prefix = f"trigger board on {self.port}: "
+                prob, detail = str(problem).removeprefix(prefix), str(last).removeprefix(prefix)
+                tail = "" if detail == prob else f": {detail}"
+                raise DeviceError(f"{prefix}{prob}; reconnecting failed too{tail}") from last
             time.sleep(0.05)
