@@ -145,6 +145,7 @@ def write(mode_rows, spacing_rows, repeat: int) -> None:
         "",
         "## Uniform vs De Bruijn spacing (same scenes, same placements)",
         "",
+        "Rendered with 2x2 rays per pixel (part 1: 3x3), so the counts differ from part 1 and from paper.md. "
         "Success: correctly labelled junctions / junctions found. > 1 %: share of points more than 1 % off (wrong lines). "
         "Coverage: lit line-centre camera pixels with a point within 1.5 px (measured with each pattern's own lines).",
         "",
