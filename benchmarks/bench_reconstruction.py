@@ -78,7 +78,7 @@ def scenes(quick: bool, noise: float):
     if not quick:
         variants += [
             ("converged-1280 noise 4", {}, 4.0),
-            ("converged-1280 pitch 16, 25/115 deg", {"pitch_px": 16.0, "alpha1_deg": 25.0, "alpha2_deg": 115.0}, noise),
+            ("converged-1280 pitch 16, 35/125 deg", {"pitch_px": 16.0, "alpha1_deg": 35.0, "alpha2_deg": 125.0}, noise),
             ("converged-1280 De Bruijn", {"spacing": "debruijn"}, noise),
         ]
     for name, kw, nz in variants:
