@@ -156,15 +156,5 @@ def _open_camera(cfg: RigConfig, *, world, projector: Projector):
         return ReplayCamera(Path(dev[len("replay:") :]))
     from drivers.v4l2 import CameraSettings, V4L2Camera, open_v4l2_capture
 
-    c = cfg.camera
-    settings = CameraSettings(
-        width=c.width,
-        height=c.height,
-        fps=c.fps,
-        fourcc=c.fourcc,
-        exposure_ms=c.exposure_ms,
-        settle_ms=c.settle_ms,
-        timeout_ms=c.timeout_ms,
-        discard=c.discard,
-    )
+    settings = CameraSettings.from_config(cfg.camera)
     return V4L2Camera(open_v4l2_capture(dev), settings, name=dev)

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from calibration.errors import ConfigError
-from calibration.file import CalibrationFile, save_calibration, write_text_atomic
+from calibration.file import CalibrationFile, atomic_write, save_calibration, write_text_atomic
 from drivers.sim.presets import SimRig
 from drivers.sim.render import RenderOptions
 from drivers.sim.world import SimWorld
@@ -48,10 +48,10 @@ def _toml_value(v: Any) -> str:
 
 def _imwrite(path: Path, image: np.ndarray) -> None:
     # Atomic: PNG beside the target, then rename (a reader never sees half a frame).
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    if not cv2.imwrite(str(tmp), image):
-        raise ConfigError(f"{path}: cannot write the PNG (is the folder writable?)")
-    os.replace(tmp, path)
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:
+        raise ConfigError(f"{path}: cannot encode a {image.dtype} {image.shape} image as PNG")
+    atomic_write(path, lambda f: f.write(buf.tobytes()))
 
 
 def simulation_toml(*, rig: SimRig, pattern: PatternLike, options: RenderOptions, seed: int) -> str:
