@@ -37,7 +37,8 @@ def default_blueprint():
                 row_shares=[3, 1],
             ),
             rrb.Vertical(
-                rrb.Spatial2DView(name="camera", origin="/world/camera"),
+                # The depth image has its own view; drawn over the camera image it would tint it.
+                rrb.Spatial2DView(name="camera", origin="/world/camera", contents=["$origin/**", "- /world/camera/depth"]),
                 rrb.Spatial2DView(name="depth", origin="/world/camera", contents=["/world/camera/depth"]),
                 rrb.Tabs(
                     rrb.Spatial2DView(name="pattern", origin="/world/projector"),
