@@ -16,7 +16,8 @@ def check(config: Path = typer.Option(None, "--config", "-c", help="rig.toml (de
     from calibration.errors import ConfigError
     from rig.acquire import grab_verified
     from rig.config import load_config
-    from rig.registry import open_rig
+    from reconstruction.placement import labelling_margin
+    from rig.registry import open_rig, working_volume
 
     cfg = load_config(config)
     with open_rig(cfg) as rig:
@@ -40,4 +41,10 @@ def check(config: Path = typer.Option(None, "--config", "-c", help="rig.toml (de
         )
         typer.echo(f"calibration: {rig.calibration_source}; baseline {procam.baseline_mm:.1f} mm")
         rig.projector.stop()
+    volume = working_volume(cfg)
+    margin = labelling_margin(procam, cfg.pattern, depth_range_mm=volume)
+    typer.echo(f"placement: working volume {volume[0]:.0f}–{volume[1]:.0f} mm; {margin.advice()}")
+    if margin.verdict == "ill-posed":
+        typer.echo("rig check: devices OK, but this camera placement cannot label the grid reliably", err=True)
+        raise typer.Exit(1)
     typer.echo("rig check: OK")
