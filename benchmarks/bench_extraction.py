@@ -3,9 +3,9 @@ line-centre error, sample coverage, and time per extraction stage.
 
     .venv/bin/python -m benchmarks.bench_extraction [--repeat N] [--noise GREY]
 
-Scenes: the paper's three configurations (758x570), the tabletop preset and `converged-1280` (1280x1024)
-from benchmarks.bench_reconstruction, rendered with sensor noise (default 2 grey levels). One OpenCV
-thread. Writes benchmarks/results/bench_extraction.md.
+Scenes: the paper's three configurations (758x570), the tabletop preset and `converged-1280` (1280x1024,
+from benchmarks.bench_reconstruction; also with noise 4 and with a 16-px pitch at 35/125 deg), rendered
+with sensor noise (default 2 grey levels). One OpenCV thread. Writes benchmarks/results/bench_extraction.md.
 
 Truth (`truth_grid`): the simulator's q_proj (the projector pixel each camera pixel sees) turned into
 continuous line indices c_i, c_j per camera pixel; junction (i, j) is where (c_i, c_j) = (i, j), found to
@@ -28,6 +28,7 @@ edge's segment or inside a kept junction's disk), which is what labelling can re
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 from pathlib import Path
@@ -235,8 +236,27 @@ def _cover(target: np.ndarray, q: np.ndarray) -> float:
     return float((dist[target] <= 1.5).mean())
 
 
+def scenes(noise: float):
+    """(name, procam, scene, pattern, depth range, noise) of the benchmark scenes."""
+    from benchmarks.bench_reconstruction import converged_1280
+    from drivers.sim import preset
+    from reconstruction.patterns import GridPattern
+
+    out = []
+    for name in ("paper-parallel", "paper-intermediate", "paper-orthogonal", "tabletop"):
+        rig = preset(name)
+        out.append((name, rig.procam, rig.scene, GridPattern(), rig.depth_range_mm, noise))
+    for name, kw, nz in (
+        ("converged-1280", {}, noise),
+        ("converged-1280 noise 4", {}, 4.0),
+        ("converged-1280 pitch 16, 35/125 deg", {"pitch_px": 16.0, "alpha1_deg": 35.0, "alpha2_deg": 125.0}, noise),
+    ):
+        procam, scene, pattern, dr = converged_1280(**kw)
+        out.append((name, procam, scene, pattern, dr, nz))
+    return out
+
+
 def main() -> None:
-    from benchmarks.bench_reconstruction import scenes
     from drivers.sim import RenderOptions, render
     from reconstruction.extraction import extract_grid
     from reconstruction.rigmodel import rig_model
@@ -247,9 +267,9 @@ def main() -> None:
     args = ap.parse_args()
     cv2.setNumThreads(1)
     rows = []
-    for name, procam, scene, pattern, dr in scenes(False):
+    for name, procam, scene, pattern, dr, noise in scenes(args.noise):
         img, truth = render(procam, scene, pattern.render(procam.projector.width, procam.projector.height),
-                            options=RenderOptions(noise_grey=args.noise), rng=np.random.default_rng(0))
+                            options=RenderOptions(noise_grey=noise), rng=np.random.default_rng(0))
         model = rig_model(procam, pattern, dr)
         obs = extract_grid(img, model)
         runs = []
@@ -268,7 +288,9 @@ def main() -> None:
         "# bench_extraction",
         "",
         f"Command: `.venv/bin/python -m benchmarks.bench_extraction --repeat {args.repeat}` (noise {args.noise} grey levels, "
-        "cv2.setNumThreads(1), this machine). Definitions: module docstring of benchmarks/bench_extraction.py.",
+        "cv2.setNumThreads(1), this machine; load average at the end: "
+        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores, other jobs inflate the times). "
+        "Definitions: module docstring of benchmarks/bench_extraction.py.",
         "",
         "| scene | camera | visible junctions | found | recall % | precision % | pos. err median px | p95 px | visible edges | edges | edge recall % | edge precision % | line err median px | p95 px | coverage % | graph coverage % | ms |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
@@ -280,7 +302,7 @@ def main() -> None:
             f"{r['edges_found']} | {100 * r['edge_recall']:.1f} | {100 * r['edge_precision']:.1f} | {r['line_err_median']:.3f} | "
             f"{r['line_err_p95']:.3f} | {100 * r['coverage']:.1f} | {100 * r['graph_coverage']:.1f} | {r['ms']:.1f} |"
         )
-    stages = sorted({k for _, r in rows for k in r["stages"]}, key=lambda k: list(rows[0][1]["stages"]).index(k) if k in rows[0][1]["stages"] else 99)
+    stages = [k for k in rows[0][1]["stages"] if k != "total"] if rows else []
     if stages:
         lines += ["", "Time per stage (ms, median of the repeats):", "", "| scene | camera | " + " | ".join(stages) + " | total |",
                   "|---|---|" + "---|" * (len(stages) + 1)]
