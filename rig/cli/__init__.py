@@ -44,7 +44,10 @@ def fail(message: str, code: int = 1) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Console-script entry point: runs the app, mapping RigError to one line and its exit code."""
     try:
-        app(args=argv, standalone_mode=False)
+        rv = app(args=argv, standalone_mode=False)
+        # Without standalone mode, click returns the code of a typer.Exit instead of raising it.
+        if isinstance(rv, int):
+            return rv
     except RigError as e:
         typer.echo(f"rig: error: {e}", err=True)
         return e.exit_code
@@ -53,18 +56,14 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except typer.Exit as e:
         return e.exit_code
-    except SystemExit as e:  # click's own usage errors
-        return int(e.code or 0)
-    except Exception as e:  # click usage errors come as click.exceptions.*
-        import click
-
-        if isinstance(e, click.exceptions.ClickException):
-            e.show()
-            return e.exit_code
-        if isinstance(e, click.exceptions.Abort):
-            typer.echo("rig: aborted", err=True)
-            return 130
-        raise
+    except typer.Abort:
+        typer.echo("rig: aborted", err=True)
+        return 130
+    except typer.TyperException as e:  # usage errors (typer's own click): show them as click would
+        show = getattr(e, "show", None)
+        if show is not None:
+            show()
+        return int(getattr(e, "exit_code", 2))
     return 0
 
 

@@ -25,3 +25,9 @@ def test_degenerate_placement_is_reported(tmp_path, capsys):
     assert main(["check", "--config", str(tmp_path / "rig.toml")]) == 1
     captured = capsys.readouterr()
     assert "labelling is ill-posed" in captured.out and "cannot label the grid reliably" in captured.err
+
+
+def test_usage_errors_are_one_message_and_exit_2(capsys):
+    assert main(["scan", "--bogus"]) == 2
+    assert "No such option: --bogus" in capsys.readouterr().err
+    assert main(["scan", "--frames", "0"]) == 2
