@@ -12,13 +12,15 @@ from functools import lru_cache
 import numpy as np
 
 from calibration.models import ProCam
-from reconstruction.geometry import epipolar_lines, intersect_planes, triangulate_rays
+from reconstruction.geometry import epipolar_lines, triangulate_rays
 from reconstruction.patterns import GridPattern
 
 #: label value of a junction or point that has no (i, j) / line index
 UNLABELLED = np.iinfo(np.int32).min
 
 _CELL_PX = 32  # spacing of the orientation-prediction grid in camera pixels
+_CAM_TABLE_PX = 4  # spacing of the camera undistortion table (bilinear in between: < 1e-3 px off, see cam_normalised)
+_SHEET_NODES = 8  # light-sheet table: chord planes per crossing along each line
 
 
 @dataclass(frozen=True, eq=False)
@@ -35,6 +37,12 @@ class RigModel:
     J_proj_cam: (gh, gw, 2, 2) Jacobian d(projector px)/d(camera px) on the same grid.
     min_separation_px: smallest projector-pixel distance, across the pattern, between a junction's
         epipolar line and a junction a few labels away (the labelling's margin; small = ill-posed).
+    cam_xy_table: (th, tw, 2) normalised undistorted camera coordinates of the pixels (k·s, l·s) at
+        [l, k], s = cam_table_px (None without camera distortion): `cam_normalised` interpolates it.
+    sheet_normals: (2, L, K − 1, 3) normals of the chord planes of every line's light sheet (family 1 at
+        [0], 2 at [1]; line index − index_min; K = (L − 1)·sheet_nodes + 1 points along the line at the
+        other family's fractional indices index_min + k/sheet_nodes). sheet_end_normals (2, L, 3): the
+        plane through each line's two ends.
     """
 
     procam: ProCam
@@ -48,6 +56,11 @@ class RigModel:
     dir_cam: np.ndarray
     J_proj_cam: np.ndarray
     min_separation_px: float
+    cam_table_px: int = _CAM_TABLE_PX
+    cam_xy_table: np.ndarray | None = None
+    sheet_nodes: int = _SHEET_NODES
+    sheet_normals: np.ndarray | None = None
+    sheet_end_normals: np.ndarray | None = None
 
     @property
     def cam_per_proj_px(self) -> float:
@@ -132,33 +145,110 @@ class RigModel:
                 out[sel] = np.interp(y[sel] - n * x[sel], self.pattern.offsets_px(f), idx)
         return out
 
-    def intersect_light_sheets(self, xy_cam: np.ndarray, family: np.ndarray, index: np.ndarray, *, iterations: int = 2) -> np.ndarray:
+    def cam_normalised(self, q_cam: np.ndarray) -> np.ndarray:
+        """Camera pixels (N, 2) -> normalised undistorted coordinates (N, 2), like
+        `Intrinsics.pixels_to_normalised` but from the per-rig table (bilinear between nodes 4 px apart;
+        the undistortion is smooth, so the interpolation error is ~h²·|f''|/8, far below the sample noise;
+        `test_recon_geometry` checks < 1e-3 px). Points outside the table use the exact inverse."""
+        q = np.asarray(q_cam, np.float64).reshape(-1, 2)
+        tab = self.cam_xy_table
+        if tab is None or len(q) == 0:
+            return self.procam.camera.pixels_to_normalised(q)
+        th, tw = tab.shape[:2]
+        s = 1.0 / self.cam_table_px
+        x = q[:, 0] * s
+        y = q[:, 1] * s
+        inside = (x >= 0) & (y >= 0) & (x < tw - 1) & (y < th - 1)
+        x0 = np.clip(x.astype(np.intp), 0, tw - 2)  # floor for x >= 0; outside points are redone below
+        y0 = np.clip(y.astype(np.intp), 0, th - 2)
+        fx = x - x0
+        fy = y - y0
+        k = y0 * tw + x0
+        w00 = (1 - fx) * (1 - fy)
+        w01 = fx * (1 - fy)
+        w10 = (1 - fx) * fy
+        w11 = fx * fy
+        out = np.empty((len(q), 2))
+        for c in (0, 1):
+            t = tab[:, :, c].ravel()
+            out[:, c] = t[k] * w00 + t[k + 1] * w01 + t[k + tw] * w10 + t[k + tw + 1] * w11
+        if not inside.all():
+            out[~inside] = self.procam.camera.pixels_to_normalised(q[~inside])
+        return out
+
+    def intersect_light_sheets(self, xy_cam: np.ndarray, family: np.ndarray, index: np.ndarray, *, iterations: int = 1) -> np.ndarray:
         """Points p_proj (N, 3), mm: camera rays (normalised points xy_cam (N, 2)) ∩ the light sheets of
-        lines (family (N,) 1 or 2, index (N,)).
+        lines (family (N,) 1 or 2, integer index (N,)).
 
         A line is straight in projector pixels, so with projector distortion its sheet of light is slightly
-        curved. First the plane through the line's two ends; then, `iterations` times, the sheet's tangent
-        plane where the previous point projects (through the rays of the line's points 0.02 crossings either
-        side). Without projector distortion the first plane is exact. NaN where the ray misses.
+        curved. First the plane through the line's two ends (exact without projector distortion); then,
+        `iterations` times, the chord plane of the sheet (from the per-rig table, 1/sheet_nodes of a
+        crossing long) where the previous point projects. The chord is within ~1e-5 of the sheet and the
+        first point's position along the line is off by far less than a chord, so one iteration is enough
+        (round trip < 0.01 mm with k1 = 0.08 in `test_recon_geometry`). NaN where the ray misses.
         """
-        family = np.asarray(family)
-        index = np.asarray(index, np.float64)
-        N = self._plane_through(family, index, self.index_min, self.index_max)
-        p = intersect_planes(self.procam, xy_cam, N)
-        if not self.procam.projector.has_distortion:
+        family = np.asarray(family).astype(np.intp)
+        index = np.asarray(index).astype(np.intp)
+        xy = np.asarray(xy_cam, np.float64).reshape(-1, 2)
+        R = self.procam.R_proj_cam
+        d = xy @ R[:, :2].T + R[:, 2]  # camera rays in the world frame (geometry.camera_rays_proj)
+        t = self.procam.t_proj_cam
+        li = np.clip(index - self.index_min, 0, self.index_max - self.index_min)
+        p = _ray_plane(t, d, self.sheet_end_normals[family - 1, li])
+        if not self.procam.projector.has_distortion or iterations <= 0:
             return p
-        other_family = np.where(family == 1, 2, 1)
+        other_family = 3 - family
+        K = self.sheet_normals.shape[2]
         for _ in range(iterations):
-            ok = np.isfinite(p).all(axis=1) & (p[:, 2] > 0)
-            if not ok.any():
-                break
-            uv = np.full((len(p), 2), np.nan)
-            uv[ok] = self.procam.projector.project(p[ok])
-            other = self.fractional_index(other_family, uv)
-            other = np.where(np.isfinite(other), other, 0.5 * (self.index_min + self.index_max))
-            # the sheet's tangent plane there: through the rays of the line's points a short step either side
-            p = intersect_planes(self.procam, xy_cam, self._plane_through(family, index, other - 0.02, other + 0.02))
+            other = self.fractional_index(other_family, self.procam.projector.project(p))  # NaN stays NaN
+            seg = (other - self.index_min) * self.sheet_nodes
+            seg = np.clip(np.where(np.isfinite(seg), seg, K // 2), 0, K - 1).astype(np.intp)
+            p = _ray_plane(t, d, self.sheet_normals[family - 1, li, seg])
         return p
+
+
+def _ray_plane(t: np.ndarray, d: np.ndarray, N: np.ndarray) -> np.ndarray:
+    """Camera rays t + λ·d (d (N, 3), |d| ≥ 1) ∩ planes N·p = 0 (unit normals N (N, 3)); NaN where the
+    ray is parallel to the plane or meets it behind the camera (as geometry.intersect_planes)."""
+    nd = N[:, 0] * d[:, 0] + N[:, 1] * d[:, 1] + N[:, 2] * d[:, 2]
+    nt = N @ t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam = -nt / nd
+    lam[~(lam > 0) | (np.abs(nd) < 1e-9)] = np.nan
+    return t + lam[:, None] * d
+
+
+def _sheet_tables(procam: ProCam, pattern: GridPattern, nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Chord-plane normals (2, L, K−1, 3) and end-plane normals (2, L, 3) of every line's light sheet."""
+    idx = pattern.indices.astype(np.float64)
+    L = len(idx)
+    other = idx[0] + np.arange((L - 1) * nodes + 1) / nodes  # (K,)
+    K = len(other)
+    chords = np.zeros((2, L, K - 1, 3))
+    ends = np.zeros((2, L, 3))
+    for f in (1, 2):
+        ii, oo = np.meshgrid(idx, other, indexing="ij")  # (L, K)
+        i, j = (ii, oo) if f == 1 else (oo, ii)
+        xy = procam.projector.pixels_to_normalised(pattern.junction_uv(i.ravel(), j.ravel())).reshape(L, K, 2)
+        rays = np.concatenate([xy, np.ones((L, K, 1))], axis=2)
+        n = np.cross(rays[:, :-1], rays[:, 1:])
+        chords[f - 1] = n / np.linalg.norm(n, axis=2, keepdims=True)
+        e = np.cross(rays[:, 0], rays[:, -1])
+        ends[f - 1] = e / np.linalg.norm(e, axis=1, keepdims=True)
+    return chords, ends
+
+
+def _cam_table(procam: ProCam, step: int) -> np.ndarray | None:
+    """Normalised undistorted coordinates (th, tw, 2) of camera pixels on a grid `step` px apart, one node
+    beyond the image on each far side (so every pixel centre is inside the table)."""
+    cam = procam.camera
+    if not cam.has_distortion:
+        return None
+    tw = int(np.ceil((cam.width - 1) / step)) + 2
+    th = int(np.ceil((cam.height - 1) / step)) + 2
+    gv, gu = np.mgrid[0:th, 0:tw]
+    q = np.column_stack([gu.ravel(), gv.ravel()]).astype(np.float64) * step
+    return np.ascontiguousarray(cam.pixels_to_normalised(q).reshape(th, tw, 2))
 
 
 def _reference_depth(procam: ProCam, depth_range_mm: tuple[float, float]) -> float:
@@ -244,8 +334,11 @@ def rig_model(procam: ProCam, pattern: GridPattern, depth_range_mm: tuple[float,
         dirs.append(v / np.linalg.norm(v, axis=1, keepdims=True))
     dir_cam = np.stack(dirs, axis=1).reshape(gh, gw, 2, 2)
     J_proj_cam = np.linalg.inv(J_cam_proj).reshape(gh, gw, 2, 2)
-    for a in (dir_cam, J_proj_cam):
-        a.setflags(write=False)
+    sheet_normals, sheet_end_normals = _sheet_tables(procam, pattern, _SHEET_NODES)
+    cam_xy_table = _cam_table(procam, _CAM_TABLE_PX)
+    for a in (dir_cam, J_proj_cam, sheet_normals, sheet_end_normals, cam_xy_table):
+        if a is not None:
+            a.setflags(write=False)
     return RigModel(
         procam=procam,
         pattern=pattern,
@@ -258,4 +351,9 @@ def rig_model(procam: ProCam, pattern: GridPattern, depth_range_mm: tuple[float,
         dir_cam=dir_cam,
         J_proj_cam=J_proj_cam,
         min_separation_px=_min_separation(procam, pattern, xy, fx),
+        cam_table_px=_CAM_TABLE_PX,
+        cam_xy_table=cam_xy_table,
+        sheet_nodes=_SHEET_NODES,
+        sheet_normals=sheet_normals,
+        sheet_end_normals=sheet_end_normals,
     )
