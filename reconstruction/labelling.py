@@ -20,9 +20,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import breadth_first_order, connected_components, dijkstra
+from scipy.sparse.csgraph import breadth_first_order, connected_components
 from scipy.spatial import cKDTree
 
 from reconstruction.extraction import GridObservation
@@ -503,21 +504,22 @@ class TraceOptions:
     """How line samples inherit the index of their line from labelled junctions (docs/reconstruction.md,
     "Line samples").
 
-    mix_sigma: samples closer than this many smoothing scales σ to a sample of the other family are
-        dropped: there the two lines' profiles overlap and the ridge is pulled towards the crossing.
-    link_px: samples of one family closer than this are neighbours on a trace.
-    lateral_px: linked samples may be at most this far apart across the line. Along one light plane the
-        depth is a function of the image position across the line (∂z/∂n, see the doc), so a trace that
-        jumps across a depth edge jumps sideways in the image: this is the depth-continuity test.
-    direction_px: radius of the neighbourhood whose principal axis gives a sample's line direction.
-    max_turn_deg: linked samples' directions may differ by at most this: a line on a smooth surface bends
+    mix_sigma: samples closer than this many smoothing scales σ to a sample of the other family are in the
+        crossing's mixing zone: the two lines' profiles overlap and the ridge is pulled towards the crossing.
+        Near a labelled junction, on its fitted line, they are moved onto that line (`snap_mixing`);
+        elsewhere they are dropped.
+    link_px: samples of one family closer than this (and in neighbouring pixels) are linked on a trace.
+    lateral_px: linked samples may be at most this far apart across the line (measured against the line's
+        direction on each side of the link). Along one light plane the depth is a function of the image
+        position across the line (∂z/∂n, see the doc), so a trace that jumps across a depth edge jumps
+        sideways in the image: this is the depth-continuity test.
+    direction_px: the line's direction on each side of a link is the chord to the sample this many samples
+        away along the trace.
+    max_turn_deg: the two sides' directions may differ by at most this: a line on a smooth surface bends
         gently, a ridge that runs off along a shadow or occlusion edge (half a line cut off) turns sharply.
-    bridge_gaps, bridge_lateral_px, bridge_min_samples: if bridge_gaps, trace pieces of at least bridge_min_samples samples are joined
-        across a crossing's gap (2·mix_sigma·σ + 2·link_px at most) when each end lies within
-        bridge_lateral_px of the other piece's line. Off by default: on the tabletop rig a bridge can
-        join a line to another one that continues it across a depth edge (bench_reconstruction, --bridge).
     seed_lateral_px: a sample near a labelled junction takes the junction's index for its family only if
         it lies this close to the junction's fitted line of that family.
+    snap_mixing: move mixing-zone samples near a labelled junction onto its fitted line (else drop them).
     """
 
     mix_sigma: float = 2.0
@@ -526,82 +528,142 @@ class TraceOptions:
     direction_px: float = 3.0
     max_turn_deg: float = 10.0
     seed_lateral_px: float = 1.0
-    bridge_gaps: bool = False
-    bridge_lateral_px: float = 0.4
-    bridge_min_samples: int = 4
+    snap_mixing: bool = True
 
 
 @dataclass(frozen=True, eq=False)
 class SampleLabels:
-    """index (P,) float: the line index of each sample in its own family (NaN: none); stats: counts."""
+    """index (P,) float: the line index of each sample in its own family (NaN: none); q (P, 2): the
+    position to triangulate (the sample's own, or moved onto a labelled junction's fitted line in the
+    mixing zone); junction (P,) int: the labelled junction whose index the sample took (−1: none);
+    stats: counts."""
 
     index: np.ndarray
+    q: np.ndarray
+    junction: np.ndarray
     stats: dict = field(default_factory=dict)
 
 
-def _sample_directions(q: np.ndarray, family: np.ndarray, radius: float) -> np.ndarray:
-    """Unit line directions (P, 2): principal axis of the same-family samples within `radius`."""
-    P = len(q)
-    out = np.zeros((P, 2))
-    for f in np.unique(family).tolist():
-        sel = np.flatnonzero(family == f)
-        if len(sel) == 0:
-            continue
-        tree = cKDTree(q[sel])
-        pairs = tree.query_pairs(radius, output_type="ndarray")
-        a = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(len(sel))])
-        b = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(len(sel))])
-        d = q[sel][b] - q[sel][a]
-        n = len(sel)
-        sxx = np.bincount(a, weights=d[:, 0] * d[:, 0], minlength=n)
-        syy = np.bincount(a, weights=d[:, 1] * d[:, 1], minlength=n)
-        sxy = np.bincount(a, weights=d[:, 0] * d[:, 1], minlength=n)
-        th = 0.5 * np.arctan2(2 * sxy, sxx - syy)
-        out[sel] = np.column_stack([np.cos(th), np.sin(th)])
-    return out
+def _traces(q: np.ndarray, fam: np.ndarray, r: np.ndarray, c: np.ndarray, shape: tuple[int, int], options: TraceOptions):
+    """Cut the samples (n) of both families into trace pieces: link same-family samples in neighbouring
+    pixels (within link_px), take connected components, order each along its principal axis, and cut
+    between consecutive samples where the line jumps sideways or turns (TraceOptions).
 
-
-def _bridge_pieces(q: np.ndarray, direction: np.ndarray, comp: np.ndarray, ncomp: int, *, gap_px: float, options: "TraceOptions") -> np.ndarray:
-    """Links (B, 2) between the end samples of trace pieces that continue each other across a gap of at
-    most gap_px: the second end lies ahead of the first along the piece's direction, within
-    `bridge_lateral_px` of both pieces' lines, and the pieces are parallel within `max_turn_deg`."""
-    cnt = np.bincount(comp, minlength=ncomp)
-    big = cnt >= options.bridge_min_samples
-    if big.sum() < 2:
-        return np.zeros((0, 2), np.int64)
-    # Piece direction: mean doubled angle of its samples' directions; centre: mean position.
-    ang2 = 2 * np.arctan2(direction[:, 1], direction[:, 0])
-    th = 0.5 * np.arctan2(np.bincount(comp, np.sin(ang2), ncomp), np.bincount(comp, np.cos(ang2), ncomp))
-    pdir = np.column_stack([np.cos(th), np.sin(th)])
-    cen = np.column_stack([np.bincount(comp, q[:, 0], ncomp), np.bincount(comp, q[:, 1], ncomp)]) / np.maximum(cnt, 1)[:, None]
-    t = np.einsum("ij,ij->i", q - cen[comp], pdir[comp])
-    order = np.lexsort((t, comp))
-    first = np.searchsorted(comp[order], np.arange(ncomp), side="left")
-    last = np.searchsorted(comp[order], np.arange(ncomp), side="right") - 1
-    ids = np.flatnonzero(big)
-    ends = np.concatenate([order[first[ids]], order[last[ids]]])  # sample ids of piece ends
-    out_dir = np.concatenate([-pdir[ids], pdir[ids]])  # pointing out of the piece
-    if len(ends) < 2:
-        return np.zeros((0, 2), np.int64)
-    pairs = cKDTree(q[ends]).query_pairs(gap_px, output_type="ndarray")
-    if len(pairs) == 0:
-        return np.zeros((0, 2), np.int64)
-    a, b = pairs[:, 0], pairs[:, 1]
-    ea, eb = ends[a], ends[b]
-    d = q[eb] - q[ea]
-    dist = np.linalg.norm(d, axis=1)
-    u = d / np.maximum(dist, 1e-9)[:, None]
-    da, db = out_dir[a], out_dir[b]
-    lat_a = np.abs(d[:, 0] * da[:, 1] - d[:, 1] * da[:, 0])
-    lat_b = np.abs(d[:, 0] * db[:, 1] - d[:, 1] * db[:, 0])
-    ok = (
-        (comp[ea] != comp[eb])
-        & (np.einsum("ij,ij->i", u, da) > 0.9)  # b ahead of a's end
-        & (np.einsum("ij,ij->i", -u, db) > 0.9)  # and a ahead of b's end
-        & (-np.einsum("ij,ij->i", da, db) >= np.cos(np.deg2rad(options.max_turn_deg)))
-        & (np.maximum(lat_a, lat_b) <= options.bridge_lateral_px)
+    Returns order (n,) (sample ids sorted by piece, then position along it), piece (n,) the piece id of
+    order's samples (non-decreasing), t (n,) their position along the piece's axis (px)."""
+    n = len(q)
+    H, W = shape
+    ids = np.full(2 * H * W, -1, np.int32)
+    flat = (fam - 1) * (H * W) + r * W + c
+    ids[flat] = np.arange(n, dtype=np.int32)
+    a_l, b_l = [], []
+    for step in (1, W - 1, W, W + 1):  # the forward half of the 8-neighbourhood
+        nb = ids[flat + step]
+        ok = np.flatnonzero(nb >= 0)
+        a_l.append(ok)
+        b_l.append(nb[ok])
+    # Two samples in one pixel: the one the table lost looks at its whole 3×3 neighbourhood (rare).
+    dup = np.flatnonzero(ids[flat] != np.arange(n))
+    for step in (-W - 1, -W, -W + 1, -1, 0, 1, W - 1, W, W + 1):
+        nb = ids[flat[dup] + step]
+        ok = np.flatnonzero(nb >= 0)
+        a_l.append(dup[ok])
+        b_l.append(nb[ok])
+    a = np.concatenate(a_l)
+    b = np.concatenate(b_l).astype(np.intp)
+    dd = q[b] - q[a]
+    close = dd[:, 0] * dd[:, 0] + dd[:, 1] * dd[:, 1] <= options.link_px**2
+    a, b = a[close], b[close]
+    g = coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(n, n)).tocsr()
+    ncomp, comp = connected_components(g, directed=False)
+    # Order each component along its principal axis.
+    cnt = np.bincount(comp, minlength=ncomp).astype(np.float64)
+    mx = np.bincount(comp, q[:, 0], ncomp) / cnt
+    my = np.bincount(comp, q[:, 1], ncomp) / cnt
+    dx = q[:, 0] - mx[comp]
+    dy = q[:, 1] - my[comp]
+    th = 0.5 * np.arctan2(2 * np.bincount(comp, dx * dy, ncomp), np.bincount(comp, dx * dx - dy * dy, ncomp))
+    t = dx * np.cos(th)[comp] + dy * np.sin(th)[comp]
+    span = float(np.abs(t).max()) + 1.0
+    order = np.argsort(comp * (4 * span) + t)  # by component, then along it (one float key: faster than lexsort)
+    cs = comp[order]
+    qs = q[order]
+    ts = t[order]
+    k = np.arange(n)
+    first = np.searchsorted(cs, cs, side="left")
+    last = np.searchsorted(cs, cs, side="right") - 1
+    w = max(1, int(round(options.direction_px)))
+    back = qs - qs[np.maximum(k - w, first)]  # chord from w samples behind
+    fwd = qs[np.minimum(k + w, last)] - qs  # chord to w samples ahead
+    tan = qs[np.minimum(k + w, last)] - qs[np.maximum(k - w, first)]
+    # Link k -> k+1 (sorted order): the incoming side's direction back[k], the outgoing side's fwd[k+1].
+    B = back[:-1]
+    F = fwd[1:]
+    T = tan[:-1]
+    lb = np.hypot(B[:, 0], B[:, 1])
+    lf = np.hypot(F[:, 0], F[:, 1])
+    lt = np.maximum(np.hypot(T[:, 0], T[:, 1]), 1e-12)
+    B = np.where((lb >= 1.0)[:, None], B / np.maximum(lb, 1e-12)[:, None], T / lt[:, None])
+    F = np.where((lf >= 1.0)[:, None], F / np.maximum(lf, 1e-12)[:, None], T / lt[:, None])
+    d = qs[1:] - qs[:-1]
+    dist = np.hypot(d[:, 0], d[:, 1])
+    lateral = np.maximum(np.abs(d[:, 0] * B[:, 1] - d[:, 1] * B[:, 0]), np.abs(d[:, 0] * F[:, 1] - d[:, 1] * F[:, 0]))
+    along = np.abs(d[:, 0] * B[:, 0] + d[:, 1] * B[:, 1])
+    turn = B[:, 0] * F[:, 0] + B[:, 1] * F[:, 1]
+    cut = (
+        (cs[1:] != cs[:-1])
+        | (dist > options.link_px)
+        | (lateral > options.lateral_px)
+        | (along < lateral)
+        | (turn < np.cos(np.deg2rad(options.max_turn_deg)))
     )
-    return np.column_stack([ea[ok], eb[ok]]).astype(np.int64)
+    piece = np.concatenate([[0], np.cumsum(cut)])
+    return order, piece, ts
+
+
+def _nearest_within(q: np.ndarray, pts: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """For points q (N, 2): the index of the nearest of pts (M, 2) within `radius` (−1: none) and its
+    distance. Buckets pts in cells `radius` wide; each point looks at the 3×3 cells around its own (one
+    entry per cell is enough when pts are more than radius·√2 apart, as junctions are)."""
+    n = len(q)
+    best = np.full(n, np.inf)
+    arg = np.full(n, -1, np.intp)
+    if n == 0 or len(pts) == 0:
+        return arg, best
+    lo = np.minimum(q.min(axis=0), pts.min(axis=0))
+    cp = np.floor((pts - lo) / radius).astype(np.intp) + 1
+    cq = np.floor((q - lo) / radius).astype(np.intp) + 1
+    gw = int(max(cp[:, 0].max(), cq[:, 0].max())) + 2
+    gh = int(max(cp[:, 1].max(), cq[:, 1].max())) + 2
+    grid = np.full(gh * gw, -1, np.intp)
+    grid[cp[:, 1] * gw + cp[:, 0]] = np.arange(len(pts))
+    base = cq[:, 1] * gw + cq[:, 0]
+    for step in (-gw - 1, -gw, -gw + 1, -1, 0, 1, gw - 1, gw, gw + 1):
+        j = grid[base + step]
+        ok = np.flatnonzero(j >= 0)
+        d = q[ok] - pts[j[ok]]
+        d2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]
+        better = d2 < best[ok]
+        best[ok[better]] = d2[better]
+        arg[ok[better]] = j[ok[better]]
+    best = np.sqrt(best)
+    arg[best > radius] = -1
+    return arg, best
+
+
+def _nearest_seed(piece: np.ndarray, t: np.ndarray, has: np.ndarray) -> np.ndarray:
+    """For positions in sorted trace order (piece non-decreasing, t the position along it), the position of
+    the nearest seed (has) on the same piece, or −1."""
+    n = len(piece)
+    k = np.arange(n)
+    fwd = np.maximum.accumulate(np.where(has, k, -1))
+    bwd = np.minimum.accumulate(np.where(has, k, n)[::-1])[::-1]
+    ok_f = (fwd >= 0) & (piece[np.maximum(fwd, 0)] == piece)
+    ok_b = (bwd < n) & (piece[np.minimum(bwd, n - 1)] == piece)
+    df = np.where(ok_f, np.abs(t - t[np.maximum(fwd, 0)]), np.inf)
+    db = np.where(ok_b, np.abs(t[np.minimum(bwd, n - 1)] - t), np.inf)
+    out = np.where(df <= db, fwd, bwd)
+    return np.where(ok_f | ok_b, out, -1)
 
 
 def label_samples(
@@ -615,114 +677,94 @@ def label_samples(
     """Give every line sample the index of its line, following the visible trace of the line from the
     labelled junctions on it.
 
-    Samples of one family are linked into traces (neighbours within `link_px`, along the local line
-    direction, with no sideways jump larger than `lateral_px`); samples near a labelled junction, on the
-    junction's fitted line, are seeds carrying the junction's index; every sample takes the index of the
-    nearest seed along its trace (graph distance). A trace therefore runs from a labelled junction through
-    unlabelled crossings' gaps only where its samples stay linked, out to the image border, a shadow or an
-    occlusion. Traces whose seeds disagree (two lines joined, or a wrong junction label) are split between
-    the seeds; samples on traces without seeds stay unlabelled (never guessed).
+    Samples of one family are linked into trace pieces (neighbours within `link_px`, cut where the line
+    jumps sideways by more than `lateral_px` or turns by more than `max_turn_deg`); samples near a labelled
+    junction, on the junction's fitted line, are seeds carrying the junction's index; every sample takes
+    the index of the nearest seed along its piece. A piece therefore carries the index from a labelled
+    junction through unlabelled crossings' gaps only where its samples stay linked, out to the image
+    border, a shadow or an occlusion. Pieces whose seeds disagree (two lines joined, or a wrong junction
+    label) are split between the seeds; pieces without seeds stay unlabelled (never guessed). Samples in
+    a crossing's mixing zone are moved onto a labelled junction's fitted line or dropped.
 
     junction_labels (M, 2) int, UNLABELLED where none. sigma_px: the extraction's smoothing scale.
-    seed_radius_px: how far from a junction its seeds may lie (camera px).
+    seed_radius_px: how far from a junction its seeds may lie (camera px). Vectorised throughout (pixel
+    neighbour tables, sorting, cumulative sums): no loop over samples or traces.
     """
-    q = np.asarray(obs.q, np.float64)
-    fam = np.asarray(obs.family).astype(np.int64)
+    q = np.asarray(obs.q, np.float64).reshape(-1, 2)
+    fam = np.asarray(obs.family).astype(np.intp)
     P = len(q)
     index = np.full(P, np.nan)
-    stats = {"samples": P, "mixing_zone": 0, "seeds": 0, "seed_conflicts": 0, "traces": 0, "traces_seeded": 0,
-             "traces_conflicting": 0, "samples_labelled": 0, "samples_unseeded": 0}
-    if P == 0:
-        return SampleLabels(index, stats)
-    # 1. The mixing zone around crossings.
-    keep = np.ones(P, bool)
-    r_mix = options.mix_sigma * sigma_px
-    for f in (1, 2):
-        a = fam == f
-        b = (fam != f) & (fam > 0)
-        if a.any() and b.any():
-            dn, _ = cKDTree(q[b]).query(q[a], distance_upper_bound=r_mix)
-            keep[np.flatnonzero(a)[np.isfinite(dn)]] = False
-    stats["mixing_zone"] = int((~keep).sum())
-    direction = _sample_directions(q, np.where(keep, fam, 0), options.direction_px)
-    # 2. Seeds: kept samples near a labelled junction, on its fitted line of their family.
-    lab = np.asarray(junction_labels, np.int64)
+    q_out = q.copy()
+    seed_jid = np.full(P, -1, np.int64)
+    stats = {"samples": P, "mixing_zone": 0, "snapped_to_junction_line": 0, "seeds": 0, "seed_conflicts": 0, "traces": 0,
+             "traces_seeded": 0, "traces_conflicting": 0, "samples_labelled": 0, "samples_unseeded": 0}
+    valid = ((fam == 1) | (fam == 2)) & np.isfinite(q).all(axis=1)
+    if not valid.any():
+        return SampleLabels(index, q_out, seed_jid, stats)
+    # Pixel grid (padded so that neighbour lookups never wrap).
+    pad = 2
+    c = np.zeros(P, np.intp)
+    r = np.zeros(P, np.intp)
+    c[valid] = np.rint(q[valid, 0]).astype(np.intp)
+    r[valid] = np.rint(q[valid, 1]).astype(np.intp)
+    c[valid] += pad - min(0, int(c[valid].min()))
+    r[valid] += pad - min(0, int(r[valid].min()))
+    H = int(r.max()) + pad + 1
+    W = int(c.max()) + pad + 1
+    # 1. The mixing zone: within mix_sigma·σ of a sample of the other family (a disk on the pixel grid).
+    rad = max(1, int(round(options.mix_sigma * sigma_px)))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rad + 1, 2 * rad + 1))
+    near_other = np.zeros(P, bool)
+    for f in (1, 2):  # one dilation per family
+        other = np.zeros((H, W), np.uint8)
+        so = valid & (fam == 3 - f)
+        other[r[so], c[so]] = 1
+        sf = valid & (fam == f)
+        near_other[sf] = cv2.dilate(other, kernel)[r[sf], c[sf]] > 0
+    # 2. Seeds: samples near a labelled junction, on its fitted line of their family.
+    lab = np.asarray(junction_labels, np.int64).reshape(-1, 2)
     labelled = np.flatnonzero(lab[:, 0] != UNLABELLED)
     seed = np.full(P, UNLABELLED, np.int64)
-    if len(labelled) and keep.any():
-        kept = np.flatnonzero(keep)
-        hits = cKDTree(q[kept]).query_ball_point(obs.q_junction[labelled], r=seed_radius_px)
-        cnt = np.array([len(h) for h in hits])
-        pid = kept[np.concatenate([np.asarray(h, np.int64) for h in hits])] if cnt.sum() else np.zeros(0, np.int64)
-        jid = np.repeat(labelled, cnt)
+    if len(labelled):
+        vi = np.flatnonzero(valid)
+        k, dist = _nearest_within(q[vi], np.asarray(obs.q_junction, np.float64)[labelled], seed_radius_px)
+        hit = k >= 0
+        pid = vi[hit]
+        jid = labelled[k[hit]]
         f = fam[pid]
-        d = obs.junction_dir[jid, f - 1]
+        dvec = np.asarray(obs.junction_dir, np.float64)[jid, f - 1]
         off = q[pid] - obs.q_junction[jid]
-        on_line = np.abs(off[:, 0] * d[:, 1] - off[:, 1] * d[:, 0]) <= options.seed_lateral_px
-        pid, val = pid[on_line], lab[jid[on_line], f[on_line] - 1]
-        lo = np.full(P, np.iinfo(np.int64).max)
-        hi = np.full(P, np.iinfo(np.int64).min)
-        np.minimum.at(lo, pid, val)
-        np.maximum.at(hi, pid, val)
-        one = lo == hi
-        seed[one] = lo[one]
-        stats["seed_conflicts"] = int(((lo != hi) & (lo != np.iinfo(np.int64).max)).sum())
-    stats["seeds"] = int((seed != UNLABELLED).sum())
-    # 3. Traces and propagation, per family.
-    for f in (1, 2):
-        sel = np.flatnonzero(keep & (fam == f))
-        n = len(sel)
-        if n == 0:
-            continue
-        qs = q[sel]
-        pairs = cKDTree(qs).query_pairs(options.link_px, output_type="ndarray")
-        if len(pairs):
-            d = qs[pairs[:, 1]] - qs[pairs[:, 0]]
-            t = direction[sel][pairs[:, 0]] + np.sign(np.einsum("ij,ij->i", direction[sel][pairs[:, 0]], direction[sel][pairs[:, 1]]))[:, None] * direction[sel][pairs[:, 1]]
-            t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
-            lateral = np.abs(d[:, 0] * t[:, 1] - d[:, 1] * t[:, 0])
-            along = np.abs(np.einsum("ij,ij->i", d, t))
-            turn = np.abs(np.einsum("ij,ij->i", direction[sel][pairs[:, 0]], direction[sel][pairs[:, 1]]))
-            ok = (lateral <= options.lateral_px) & (along >= lateral) & (turn >= np.cos(np.deg2rad(options.max_turn_deg)))
-            pairs = pairs[ok]
-        pairs = pairs.reshape(-1, 2)
-        g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
-        ncomp, comp = connected_components(g, directed=False)
-        # Bridge the gaps the crossings leave (the mixing zone, unfound junctions): join the ends of two
-        # trace pieces that face each other across a short gap on one straight line.
-        bridges = np.zeros((0, 2), np.int64)
-        if options.bridge_gaps:
-            bridges = _bridge_pieces(qs, direction[sel], comp, ncomp, gap_px=2 * r_mix + 2 * options.link_px, options=options)
-        stats["bridges"] = stats.get("bridges", 0) + len(bridges)
-        if len(bridges):
-            pairs = np.concatenate([pairs, bridges])
-            g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
-            ncomp, comp = connected_components(g, directed=False)
-        stats["traces"] += int(ncomp)
-        s_idx = seed[sel]
-        has = s_idx != UNLABELLED
-        if not has.any():
-            stats["samples_unseeded"] += n
-            continue
-        # Seeds per trace: one index, or several (then the nearest seed along the trace wins).
-        seeded = np.unique(comp[has])
-        stats["traces_seeded"] += int(len(seeded))
-        lo = np.full(ncomp, np.iinfo(np.int64).max)
-        hi = np.full(ncomp, np.iinfo(np.int64).min)
-        np.minimum.at(lo, comp[has], s_idx[has])
-        np.maximum.at(hi, comp[has], s_idx[has])
-        single = (lo == hi)[comp]
-        val = np.where(single & (lo[comp] != np.iinfo(np.int64).max), lo[comp], UNLABELLED)
-        multi = (lo != hi) & (lo != np.iinfo(np.int64).max) & (hi != np.iinfo(np.int64).min)
-        stats["traces_conflicting"] += int(multi.sum())
-        if multi.any():
-            in_multi = multi[comp]
-            src = np.flatnonzero(has & in_multi)
-            _, _, sources = dijkstra(g, directed=False, indices=src, min_only=True, return_predecessors=True)
-            reach = in_multi & (sources >= 0)
-            val[reach] = s_idx[sources[reach]]
-        got = val != UNLABELLED
-        index[sel[got]] = val[got]
-        stats["samples_unseeded"] += int((~got).sum())
+        on_line = np.abs(off[:, 0] * dvec[:, 1] - off[:, 1] * dvec[:, 0]) <= options.seed_lateral_px
+        pid, jid, f, dvec, off = pid[on_line], jid[on_line], f[on_line], dvec[on_line], off[on_line]
+        seed[pid] = lab[jid, f - 1]
+        seed_jid[pid] = jid
+        if options.snap_mixing:
+            mix = near_other[pid]
+            m_id = pid[mix]
+            along = np.einsum("ij,ij->i", off[mix], dvec[mix])
+            q_out[m_id] = obs.q_junction[jid[mix]] + along[:, None] * dvec[mix]
+            index[m_id] = seed[m_id]
+            stats["snapped_to_junction_line"] = int(len(m_id))
+    kept = valid & ~near_other
+    stats["mixing_zone"] = int((valid & near_other).sum()) - stats["snapped_to_junction_line"]
+    stats["seeds"] = int((seed[kept] != UNLABELLED).sum())
+    # 3. Trace pieces and the nearest seed along each.
+    k_idx = np.flatnonzero(kept)
+    if len(k_idx):
+        order, piece, ts = _traces(q[k_idx], fam[k_idx], r[k_idx], c[k_idx], (H, W), options)
+        sid = k_idx[order]
+        sv = seed[sid]
+        has = sv != UNLABELLED
+        stats["traces"] = int(piece[-1]) + 1
+        stats["traces_seeded"] = int(len(np.unique(piece[has])))
+        hp, hv = piece[has], sv[has]
+        stats["traces_conflicting"] = int(len(np.unique(hp[1:][(hp[1:] == hp[:-1]) & (hv[1:] != hv[:-1])])))
+        near = _nearest_seed(piece, ts, has)
+        got = near >= 0
+        index[sid[got]] = sv[near[got]]
+        seed_jid[sid[got]] = seed_jid[sid[near[got]]]
+        seed_jid[sid[~got]] = -1
+        stats["samples_unseeded"] = int((~got).sum())
+    seed_jid[~np.isfinite(index)] = -1
     stats["samples_labelled"] = int(np.isfinite(index).sum())
-    return SampleLabels(index, stats)
+    return SampleLabels(index, q_out, seed_jid, stats)

@@ -22,7 +22,7 @@ from calibration.errors import ReconstructionError
 from calibration.models import ProCam
 from reconstruction.extraction import ExtractOptions, GridObservation, extract_grid, sigma_for
 from reconstruction.geometry import depth_cam, triangulate_rays
-from reconstruction.labelling import LabelOptions, Labels, TraceOptions, label_epipolar, label_paper, label_samples
+from reconstruction.labelling import LabelOptions, Labels, SampleLabels, TraceOptions, label_epipolar, label_paper, label_samples
 from reconstruction.patterns import GridPattern
 from reconstruction.rigmodel import UNLABELLED, RigModel, rig_model
 
@@ -118,15 +118,21 @@ def reconstruct(
     t_model = time.perf_counter()
     obs = extract_grid(image, model, options=options.extract)
     t_extract = time.perf_counter()
-    xy_cam_j = procam.camera.pixels_to_normalised(obs.q_junction)
+    xy_cam_j = model.cam_normalised(obs.q_junction)
     if options.labeller == "paper":
         lab = label_paper(obs, model, xy_cam_j)
     else:
         lo = options.label
         lo = LabelOptions(**{**lo.__dict__, "depth_min_mm": options.depth_min_mm, "depth_max_mm": options.depth_max_mm})
         lab = label_epipolar(obs, model, xy_cam_j, options=lo)
+    # Line samples take their line's index along the trace from a labelled junction (part of labelling).
+    sl = None
+    if options.dense and (lab.labels[:, 0] != UNLABELLED).any() and len(obs.q):
+        sigma = float(obs.stats.get("sigma_px", sigma_for(model, options.extract)))
+        seed_r = float(obs.stats.get("junction_radius_px", 0.4 * model.junction_step_cam_px))
+        sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=options.trace)
     t_label = time.perf_counter()
-    result = _triangulate(image, obs, lab, model, xy_cam_j, options)
+    result = _triangulate(image, obs, lab, sl, model, xy_cam_j, options)
     t_tri = time.perf_counter()
     stats = result.stats
     stats["ms"] = {
@@ -139,7 +145,9 @@ def reconstruct(
     return result
 
 
-def _triangulate(image, obs: GridObservation, lab: Labels, model: RigModel, xy_cam_j, options: ReconstructOptions) -> Reconstruction:
+def _triangulate(
+    image, obs: GridObservation, lab: Labels, sl: SampleLabels | None, model: RigModel, xy_cam_j, options: ReconstructOptions
+) -> Reconstruction:
     procam = model.procam
     H, W = np.asarray(image).shape[:2]
     warnings: list[str] = []
@@ -154,33 +162,26 @@ def _triangulate(image, obs: GridObservation, lab: Labels, model: RigModel, xy_c
     if labelled.any():
         pj, _gap = triangulate_rays(procam, xy_cam_j[labelled], model.junction_xy(lj[:, 0], lj[:, 1]))
 
-    # Line samples: each takes the index of its line along the trace from a labelled junction
-    # (labelling.label_samples), then camera ray ∩ the light sheet of that line.
+    # Line samples (indexed by labelling.label_samples): camera ray ∩ the light sheet of their line.
     ps = np.zeros((0, 3))
     qs = np.zeros((0, 2))
     fs = np.zeros(0, np.int8)
     ls = np.zeros((0, 2), np.int64)
     rs = np.zeros(0)
-    sample_stats: dict = {}
-    if options.dense and labelled.any() and len(obs.q):
-        sigma = float(obs.stats.get("sigma_px", sigma_for(model, options.extract)))
-        seed_r = float(obs.stats.get("junction_radius_px", 0.4 * model.junction_step_cam_px))
-        sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=options.trace)
-        sample_stats = sl.stats
-        use = np.isfinite(sl.index)
-        if use.any():
+    sample_stats: dict = sl.stats if sl is not None else {}
+    if sl is not None:
+        use = np.flatnonzero(np.isfinite(sl.index))
+        if len(use):
             f_u = np.asarray(obs.family)[use].astype(np.int64)
             idx_u = sl.index[use].astype(np.int64)
-            qs = obs.q[use]
-            xy = procam.camera.pixels_to_normalised(qs)
-            ps = model.intersect_light_sheets(xy, f_u, idx_u)
+            qs = sl.q[use]
+            ps = model.intersect_light_sheets(model.cam_normalised(qs), f_u, idx_u)
             fs = f_u.astype(np.int8)
             ls = np.full((len(qs), 2), UNLABELLED, np.int64)
             ls[f_u == 1, 0] = idx_u[f_u == 1]
             ls[f_u == 2, 1] = idx_u[f_u == 2]
-            # residual of a sample: that of the nearest labelled junction
-            _, near = cKDTree(obs.q_junction[labelled]).query(qs)
-            rs = lab.residual[labelled][near]
+            # residual of a sample: that of the labelled junction whose index it took
+            rs = lab.residual[np.maximum(sl.junction[use], 0)]
 
     points = np.concatenate([pj, ps]) if len(ps) else pj
     q_all = np.concatenate([qj, qs]) if len(qs) else qj
@@ -221,6 +222,7 @@ def _triangulate(image, obs: GridObservation, lab: Labels, model: RigModel, xy_c
         "labeller": options.labeller,
         "samples_labelled": int(sample_stats.get("samples_labelled", 0)),
         "samples_left_out": {k: int(sample_stats.get(k, 0)) for k in ("mixing_zone", "samples_unseeded")},
+        "samples_snapped": int(sample_stats.get("snapped_to_junction_line", 0)),
         "traces_conflicting": int(sample_stats.get("traces_conflicting", 0)),
         "components_split": int(lab.stats.get("components_split", 0)),
     }
