@@ -63,7 +63,7 @@ class LabelOptions:
     candidate_band_px: float = 4.0
     candidate_refs: int = 5
     outlier_sigma: float = 6.0
-    max_residual_px: float = 0.75
+    max_residual_px: float = 0.3
     min_split_component: int = 3
     max_split_rounds: int = 3
     min_component: int = 1
@@ -520,6 +520,16 @@ class TraceOptions:
     seed_lateral_px: a sample near a labelled junction takes the junction's index for its family only if
         it lies this close to the junction's fitted line of that family.
     snap_mixing: move mixing-zone samples near a labelled junction onto its fitted line (else drop them).
+    grow_crossings (off: see decision 0049): seed pieces at crossings the labeller has no junction for (not found by extraction,
+        or T-shaped at the pattern's rim): the crossing (i, j) next to two labelled junctions in a row is
+        predicted by extrapolation, the unknown line's samples there are fitted, the crossing is that fit
+        ∩ the labelled junction's fitted line of the other family, and it must pass the labeller's own
+        tests: within max_residual_px of its epipolar line and inside the depth range (needs `model`).
+    grow_radius: how far from the prediction (in junction steps) the unknown line's samples are taken.
+    grow_tolerance: how far (in junction steps) the crossing may lie from the extrapolated position.
+    grow_reach: a grown seed labels its piece only this many seed radii along it (about one junction step):
+        beyond, the piece may run on across a depth edge where the lines happen to continue each other.
+    max_residual_px: projector px, as LabelOptions.max_residual_px.
     """
 
     mix_sigma: float = 2.0
@@ -529,6 +539,11 @@ class TraceOptions:
     max_turn_deg: float = 10.0
     seed_lateral_px: float = 1.0
     snap_mixing: bool = True
+    grow_crossings: bool = False
+    grow_radius: float = 0.45
+    grow_tolerance: float = 0.1
+    grow_reach: float = 2.5
+    max_residual_px: float = 0.3
 
 
 @dataclass(frozen=True, eq=False)
@@ -651,6 +666,89 @@ def _nearest_within(q: np.ndarray, pts: np.ndarray, radius: float) -> tuple[np.n
     return arg, best
 
 
+def _grown_seeds(obs, lab, model: RigModel, q, fam, free, depth_range_mm, options: TraceOptions):
+    """Seeds at crossings next to labelled junctions that have no junction of their own (TraceOptions
+    .grow_crossings). Returns sample ids, their index, and the labelled junction they were grown from."""
+    none = (np.zeros(0, np.intp), np.zeros(0, np.int64), np.zeros(0, np.int64))
+    L = model.index_max - model.index_min + 1
+    lj = np.flatnonzero(lab[:, 0] != UNLABELLED)
+    qj = np.asarray(obs.q_junction, np.float64)
+    tab = np.full((L + 4, L + 4), -1, np.intp)  # junction id of label (i, j) at [i − min + 2, j − min + 2]
+    tab[lab[lj, 0] - model.index_min + 2, lab[lj, 1] - model.index_min + 2] = lj
+    ii, jj = np.meshgrid(np.arange(2, L + 2), np.arange(2, L + 2), indexing="ij")
+    preds = []
+    for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        j1 = tab[ii + di, jj + dj]
+        j2 = tab[ii + 2 * di, jj + 2 * dj]
+        ok = (tab[ii, jj] < 0) & (j1 >= 0) & (j2 >= 0)
+        # moving along a j-line (di ≠ 0) the known line is the j-line (family 2), the unknown the i-line
+        f_unknown = 1 if di else 2
+        preds.append(np.column_stack([ii[ok] - 2 + model.index_min, jj[ok] - 2 + model.index_min, j1[ok], j2[ok],
+                                      np.full(ok.sum(), f_unknown)]))
+    pr = np.concatenate(preds)
+    if len(pr) == 0:
+        return none
+    _, first = np.unique(pr[:, 0] * (4 * L) + pr[:, 1] + pr[:, 4] * (16 * L * L), return_index=True)
+    pr = pr[first]
+    q1, q2 = qj[pr[:, 2]], qj[pr[:, 3]]
+    pred = 2 * q1 - q2
+    step = np.hypot(*(q1 - q2).T)
+    out = []
+    for f in (1, 2):  # the unknown line's family
+        sel = np.flatnonzero(pr[:, 4] == f)
+        cand = np.flatnonzero(free & (fam == f))
+        if len(sel) == 0 or len(cand) == 0:
+            continue
+        rad = options.grow_radius * float(np.median(step[sel]))
+        k, dist = _nearest_within(q[cand], pred[sel], rad)
+        hit = (k >= 0)
+        hit[hit] &= dist[hit] <= options.grow_radius * step[sel][k[hit]]
+        sid, g = cand[hit], k[hit]
+        if len(sid) == 0:
+            continue
+        # fit the unknown line's samples of each prediction: centroid and principal direction
+        V = len(sel)
+        cnt = np.bincount(g, minlength=V).astype(float)
+        mx = np.bincount(g, q[sid, 0], V) / np.maximum(cnt, 1)
+        my = np.bincount(g, q[sid, 1], V) / np.maximum(cnt, 1)
+        dx, dy = q[sid, 0] - mx[g], q[sid, 1] - my[g]
+        th = 0.5 * np.arctan2(2 * np.bincount(g, dx * dy, V), np.bincount(g, dx * dx - dy * dy, V))
+        u = np.column_stack([np.cos(th), np.sin(th)])
+        lat = np.abs(dx * u[g, 1] - dy * u[g, 0])
+        rms = np.sqrt(np.bincount(g, lat * lat, V) / np.maximum(cnt, 1))
+        # the known line: the fitted line of the other family at the neighbouring labelled junction
+        jn = pr[sel, 2]
+        D = np.asarray(obs.junction_dir, np.float64)[jn, 2 - f]
+        A = qj[jn]
+        # m + s·u = A + t·D  ->  cross products
+        den = u[:, 0] * D[:, 1] - u[:, 1] * D[:, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tt = ((mx - A[:, 0]) * u[:, 1] - (my - A[:, 1]) * u[:, 0]) / (-den)
+        qx = A + tt[:, None] * D
+        good = (cnt >= 3) & (rms <= 0.5 * options.lateral_px + 0.1) & (np.abs(den) > np.sin(np.deg2rad(15)))
+        good &= np.isfinite(qx).all(axis=1)
+        # The crossing must be where the surface's continuation puts it: on an ill-posed rig a wrong
+        # label passes the epipolar test only at another depth, which moves the crossing along its
+        # epipolar line, away from the extrapolated position.
+        good[good] &= np.hypot(*(qx[good] - pred[sel][good]).T) <= options.grow_tolerance * step[sel][good]
+        if not good.any():
+            continue
+        gi = np.flatnonzero(good)
+        I, J = pr[sel[gi], 0], pr[sel[gi], 1]
+        xy = model.cam_normalised(qx[gi])
+        res = _epipolar_residual_px(model, epipolar_lines(model.procam, xy), I, J)
+        p, _ = triangulate_rays(model.procam, xy, model.junction_xy(I, J))
+        z = depth_cam(model.procam, p)
+        ok = (res <= options.max_residual_px) & (z >= depth_range_mm[0]) & (z <= depth_range_mm[1])
+        good[gi] = ok
+        take = good[g] & (lat <= options.seed_lateral_px)
+        val = np.where(f == 1, pr[sel, 0], pr[sel, 1])
+        out.append((sid[take], val[g[take]], pr[sel, 2][g[take]]))
+    if not out:
+        return none
+    return tuple(np.concatenate(a) for a in zip(*out))
+
+
 def _nearest_seed(piece: np.ndarray, t: np.ndarray, has: np.ndarray) -> np.ndarray:
     """For positions in sorted trace order (piece non-decreasing, t the position along it), the position of
     the nearest seed (has) on the same piece, or −1."""
@@ -673,6 +771,8 @@ def label_samples(
     sigma_px: float,
     seed_radius_px: float,
     options: TraceOptions = TraceOptions(),
+    model: RigModel | None = None,
+    depth_range_mm: tuple[float, float] = (0.0, np.inf),
 ) -> SampleLabels:
     """Give every line sample the index of its line, following the visible trace of the line from the
     labelled junctions on it.
@@ -687,7 +787,8 @@ def label_samples(
     a crossing's mixing zone are moved onto a labelled junction's fitted line or dropped.
 
     junction_labels (M, 2) int, UNLABELLED where none. sigma_px: the extraction's smoothing scale.
-    seed_radius_px: how far from a junction its seeds may lie (camera px). Vectorised throughout (pixel
+    seed_radius_px: how far from a junction its seeds may lie (camera px). model, depth_range_mm: for
+    `grow_crossings` (skipped without a model). Vectorised throughout (pixel
     neighbour tables, sorting, cumulative sums): no loop over samples or traces.
     """
     q = np.asarray(obs.q, np.float64).reshape(-1, 2)
@@ -746,6 +847,13 @@ def label_samples(
             index[m_id] = seed[m_id]
             stats["snapped_to_junction_line"] = int(len(m_id))
     kept = valid & ~near_other
+    grown = np.zeros(P, bool)
+    if options.grow_crossings and model is not None and len(labelled) >= 2:
+        g_pid, g_val, g_jid = _grown_seeds(obs, lab, model, q, fam, kept & (seed == UNLABELLED), depth_range_mm, options)
+        seed[g_pid] = g_val
+        seed_jid[g_pid] = g_jid
+        grown[g_pid] = True
+        stats["seeds_grown"] = int(len(g_pid))
     stats["mixing_zone"] = int((valid & near_other).sum()) - stats["snapped_to_junction_line"]
     stats["seeds"] = int((seed[kept] != UNLABELLED).sum())
     # 3. Trace pieces and the nearest seed along each.
@@ -761,6 +869,10 @@ def label_samples(
         stats["traces_conflicting"] = int(len(np.unique(hp[1:][(hp[1:] == hp[:-1]) & (hv[1:] != hv[:-1])])))
         near = _nearest_seed(piece, ts, has)
         got = near >= 0
+        # A grown seed reaches one junction step along its piece (the crossings beyond it are unchecked).
+        far = got.copy()
+        far[got] = grown[sid[near[got]]] & (np.abs(ts[got] - ts[near[got]]) > options.grow_reach * seed_radius_px)
+        got &= ~far
         index[sid[got]] = sv[near[got]]
         seed_jid[sid[got]] = seed_jid[sid[near[got]]]
         seed_jid[sid[~got]] = -1

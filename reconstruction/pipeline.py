@@ -130,7 +130,8 @@ def reconstruct(
     if options.dense and (lab.labels[:, 0] != UNLABELLED).any() and len(obs.q):
         sigma = float(obs.stats.get("sigma_px", sigma_for(model, options.extract)))
         seed_r = float(obs.stats.get("junction_radius_px", 0.4 * model.junction_step_cam_px))
-        sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=options.trace)
+        sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=options.trace, model=model,
+                           depth_range_mm=(options.depth_min_mm, options.depth_max_mm))
     t_label = time.perf_counter()
     result = _triangulate(image, obs, lab, sl, model, xy_cam_j, options)
     t_tri = time.perf_counter()
