@@ -19,7 +19,7 @@ from reconstruction.patterns import GridPattern
 UNLABELLED = np.iinfo(np.int32).min
 
 _CELL_PX = 32  # spacing of the orientation-prediction grid in camera pixels
-_CAM_TABLE_PX = 4  # spacing of the camera undistortion table (bilinear in between: < 1e-3 px off, see cam_normalised)
+_CAM_TABLE_PX = 4  # spacing of the camera undistortion table (bilinear in between, see cam_normalised)
 _SHEET_NODES = 8  # light-sheet table: chord planes per crossing along each line
 
 
@@ -149,7 +149,7 @@ class RigModel:
         """Camera pixels (N, 2) -> normalised undistorted coordinates (N, 2), like
         `Intrinsics.pixels_to_normalised` but from the per-rig table (bilinear between nodes 4 px apart;
         the undistortion is smooth, so the interpolation error is ~h²·|f''|/8, far below the sample noise;
-        `test_recon_geometry` checks < 1e-3 px). Points outside the table use the exact inverse."""
+        `test_recon_geometry` checks < 0.005 px with k1 = −0.2). Points outside the table use the exact inverse."""
         q = np.asarray(q_cam, np.float64).reshape(-1, 2)
         tab = self.cam_xy_table
         if tab is None or len(q) == 0:

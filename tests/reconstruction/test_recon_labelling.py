@@ -222,3 +222,38 @@ def test_line_samples_take_the_nearest_seed_when_a_trace_joins_two_lines():
     x = a[:, 0]
     assert np.all(sl.index[x < 150] == 3) and np.all(sl.index[x > 250] == 5)
     assert sl.stats["traces_conflicting"] == 1
+
+
+def test_mixing_zone_samples_are_moved_onto_the_labelled_junctions_fitted_line():
+    # Two lines crossing at (200, 150); near the crossing each line's samples are pulled 0.4 px towards
+    # the other line (the overlap bias). With the junction labelled, those samples are moved back onto
+    # the junction's fitted line and keep its index; without a label they are dropped, never kept biased.
+    d1 = np.array([1.0, 0.3]) / np.hypot(1.0, 0.3)
+    d2 = np.array([-0.4, 1.0]) / np.hypot(0.4, 1.0)
+    c = np.array([200.0, 150.0])
+    s = np.arange(-30, 31, dtype=float)
+    a = c + s[:, None] * d1
+    b = c + s[:, None] * d2
+    near_a = np.abs(s) < 5
+    a[near_a] += 0.4 * d2 * np.sign(s[near_a])[:, None]  # pulled along the other line, off its own
+    b[near_a] += 0.4 * d1 * np.sign(s[near_a])[:, None]
+    keep = np.abs(s) >= 1  # the crossing pixel itself belongs to neither
+    q = np.vstack([a[keep], b[keep]])
+    fam = np.concatenate([np.full(keep.sum(), 1, np.int8), np.full(keep.sum(), 2, np.int8)])
+    jd = np.array([[d1, d2]])
+    obs = _obs(c[None], np.zeros((0, 2)), np.zeros((0, 2)), q=q, family=fam, junction_dir=jd)
+    sl = label_samples(obs, np.array([[7, -2]]), sigma_px=1.5, seed_radius_px=12.0)
+    assert sl.stats["snapped_to_junction_line"] > 10
+    moved = np.any(sl.q != q, axis=1)
+    assert moved.sum() == sl.stats["snapped_to_junction_line"]
+    # every moved sample lies on its family's fitted line, with its family's index
+    for f, dvec, idx in ((1, d1, 7), (2, d2, -2)):
+        m = moved & (fam == f)
+        off = sl.q[m] - c
+        assert np.abs(off[:, 0] * dvec[1] - off[:, 1] * dvec[0]).max() < 1e-9
+        assert np.all(sl.index[m] == idx)
+    # every sample of both lines is labelled right (the far ones along the trace)
+    assert np.all(sl.index[fam == 1] == 7) and np.all(sl.index[fam == 2] == -2)
+    # unlabelled junction: the biased samples are dropped, nothing is labelled
+    sl0 = label_samples(obs, np.array([[UNLABELLED, UNLABELLED]]), sigma_px=1.5, seed_radius_px=12.0)
+    assert np.isnan(sl0.index).all() and sl0.stats["mixing_zone"] > 10
