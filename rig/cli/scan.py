@@ -30,6 +30,7 @@ def scan(
     from rig.acquire import ScanRequest, run_scan
     from rig.config import load_config
 
+    _stop_on_sigterm()
     cfg = load_config(config)
     if out.suffix != ".rrd":
         raise typer.BadParameter(f"{out}: the recording must end in .rrd", param_hint="--out")
@@ -59,6 +60,18 @@ def scan(
     _report(summary, out)
     if summary.interrupted:
         raise typer.Exit(130)
+
+
+def _stop_on_sigterm() -> None:
+    """SIGTERM (a service manager, `kill`) stops the scan like Ctrl-C: frames kept, recording closed."""
+    import signal
+
+    def interrupt(signum, frame):  # noqa: ARG001
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # started in the background by a shell
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def _report(summary, out: Path) -> None:

@@ -102,3 +102,33 @@ def test_graycode_mode_scans_the_whole_sequence_and_measures_depth(rrd, tmp_path
     rel = np.abs(measured[both] - truth[both]) / truth[both]
     assert np.median(rel) < 5e-4
     rrd.verify(out)
+
+
+def test_sigterm_stops_a_running_scan_cleanly(rrd, tmp_path):
+    """A real process, stopped by a signal mid-scan: exit 130, every captured frame on disk and in the recording."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out, rec = tmp_path / "scan.rrd", tmp_path / "raw"
+    rig = Path(sys.executable).with_name("rig")
+    proc = subprocess.Popen([str(rig), "scan", "--frames", "500", "--no-reconstruct", "--out", str(out), "--record", str(rec)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            lines = (rec / "frames.jsonl").read_text().splitlines() if (rec / "frames.jsonl").exists() else []
+            if len(lines) >= 3 or proc.poll() is not None:
+                break
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    m = json.loads((rec / "manifest.json").read_text())
+    assert m["complete"] is False and 3 <= len(m["frames"]) < 500
+    # The raw frame is written before it is logged: the signal may fall between the two.
+    assert len(m["frames"]) - 1 <= rrd.rows(out, "/world/camera/image") <= len(m["frames"])
+    rrd.verify(out)
