@@ -66,10 +66,10 @@ def log_reconstruction(
     colours = np.where(labelled[:, None], np.array([[60, 220, 60]], np.uint8), np.array([[230, 60, 60]], np.uint8))
     rec.log(
         f"{camera_entity}/image/grid/junctions",
-        rr.Points2D(result.junctions_cam.astype(np.float32), labels=labels, colors=colours, radii=rr.Radius.ui_points(4.0)),
+        rr.Points2D(result.junctions_cam.astype(np.float32), labels=labels, colors=colours, radii=rr.Radius.ui_points(2.0), show_labels=False),
     )
     seg_col = np.where(result.segment_labelled[:, None], np.array([[80, 160, 255]], np.uint8), np.array([[160, 160, 160]], np.uint8))
-    rec.log(f"{camera_entity}/image/grid/segments", rr.LineStrips2D(list(result.segments.astype(np.float32)), colors=seg_col))
+    rec.log(f"{camera_entity}/image/grid/segments", rr.LineStrips2D(list(result.segments.astype(np.float32)), colors=seg_col, radii=rr.Radius.ui_points(0.75)))
     s = result.stats
     scalars = {
         "junctions_found": s.get("junctions_found", 0),

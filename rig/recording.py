@@ -25,14 +25,30 @@ from calibration.models import Intrinsics, ProCam
 APPLICATION_ID = "rig"
 
 
-def default_blueprint():
-    """The default layout: 3-D view, camera image with overlays, depth, pattern, statistics, calibration report."""
+def working_point_mm(procam: ProCam) -> float:
+    """Depth (projector z, mm) where the two optical axes pass closest: where the rig looks."""
+    from reconstruction.geometry import triangulate_rays
+
+    p, _ = triangulate_rays(procam, np.zeros((1, 2)), np.zeros((1, 2)))
+    z = float(p[0, 2])
+    return z if np.isfinite(z) and z > 0 else max(500.0, 3.0 * procam.baseline_mm)
+
+
+def default_blueprint(procam: ProCam | None = None):
+    """The default layout: 3-D view, camera image with overlays, depth, pattern, statistics, calibration report.
+
+    With the rig's calibration the 3-D view starts behind and above the projector, looking at the working point.
+    """
     import rerun.blueprint as rrb
 
+    eye = None
+    if procam is not None:
+        z = working_point_mm(procam)
+        eye = rrb.EyeControls3D(position=[0.0, -0.6 * z, -0.9 * z], look_target=[0.0, 0.0, z], eye_up=[0.0, -1.0, 0.0])
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
-                rrb.Spatial3DView(name="3-D", origin="/world"),
+                rrb.Spatial3DView(name="3-D", origin="/world", eye_controls=eye, line_grid=rrb.LineGrid3D(visible=False)),
                 rrb.TimeSeriesView(name="statistics", origin="/stats"),
                 row_shares=[3, 1],
             ),
@@ -65,14 +81,16 @@ def _pinhole(model: Intrinsics, image_plane_distance: float):
 class Recording:
     """One .rrd file being written. Use as a context manager (or call close(), idempotent)."""
 
-    def __init__(self, path: str | os.PathLike, *, application_id: str = APPLICATION_ID, blueprint=None):
+    def __init__(
+        self, path: str | os.PathLike, *, application_id: str = APPLICATION_ID, blueprint=None, procam: ProCam | None = None
+    ):
         import rerun as rr
 
         self.path = Path(path)
         self.partial = self.path.with_name(self.path.name + ".partial")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.stream = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
-        self.stream.save(self.partial, default_blueprint=blueprint if blueprint is not None else default_blueprint())
+        self.stream.save(self.partial, default_blueprint=blueprint if blueprint is not None else default_blueprint(procam))
         self._closed = False
         # Host monotonic -> wall clock, for the capture_time timeline.
         self._wall_minus_mono = time.time() - time.monotonic()
@@ -145,7 +163,7 @@ def open_recording(
     path: str | os.PathLike, *, procam: ProCam, pattern_image: np.ndarray | None = None, report: dict | None = None
 ) -> Recording:
     """A new recording with the rig geometry (and the pattern, if given) already logged."""
-    rec = Recording(path)
+    rec = Recording(path, procam=procam)
     rec.log_rig(procam, report=report)
     if pattern_image is not None:
         rec.log_pattern(pattern_image)
