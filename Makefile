@@ -25,6 +25,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run_all
+	$(BIN)/python -m benchmarks._readme
 
 clean:
 	rm -rf $(VENV) scan.rrd build *.egg-info
