@@ -530,6 +530,11 @@ class TraceOptions:
     grow_reach: a grown seed labels its piece only this many seed radii along it (about one junction step):
         beyond, the piece may run on across a depth edge where the lines happen to continue each other.
     max_residual_px: projector px, as LabelOptions.max_residual_px.
+    max_profile_drop: a labelled sample is dropped when the image at it is darker than the brightest point
+        within half a line width across the line by more than this share of the line's contrast (the
+        brightest inner point minus the darker of the two points one line width away; image 3×3
+        box-filtered). The smoothed ridge of a line that an occluding edge half hides sits on the edge,
+        off the line's light (decision 0050). 0 turns the test off; it needs the image.
     """
 
     mix_sigma: float = 2.0
@@ -544,6 +549,7 @@ class TraceOptions:
     grow_tolerance: float = 0.1
     grow_reach: float = 2.5
     max_residual_px: float = 0.3
+    max_profile_drop: float = 0.15
 
 
 @dataclass(frozen=True, eq=False)
@@ -565,7 +571,8 @@ def _traces(q: np.ndarray, fam: np.ndarray, r: np.ndarray, c: np.ndarray, shape:
     between consecutive samples where the line jumps sideways or turns (TraceOptions).
 
     Returns order (n,) (sample ids sorted by piece, then position along it), piece (n,) the piece id of
-    order's samples (non-decreasing), t (n,) their position along the piece's axis (px)."""
+    order's samples (non-decreasing), t (n,) their position along the piece's axis (px), tangent (n, 2)
+    the unit chord direction through each (in order's order)."""
     n = len(q)
     H, W = shape
     ids = np.full(2 * H * W, -1, np.int32)
@@ -633,7 +640,47 @@ def _traces(q: np.ndarray, fam: np.ndarray, r: np.ndarray, c: np.ndarray, shape:
         | (turn < np.cos(np.deg2rad(options.max_turn_deg)))
     )
     piece = np.concatenate([[0], np.cumsum(cut)])
-    return order, piece, ts
+    lt_all = np.maximum(np.hypot(tan[:, 0], tan[:, 1]), 1e-12)
+    return order, piece, ts, tan / lt_all[:, None]
+
+
+def profile_drop(image: np.ndarray, q: np.ndarray, tangent: np.ndarray, width_px: float) -> np.ndarray:
+    """How far the image at each sample falls below its line's brightest point, as a share of contrast.
+
+    image (H, W) grey; q (N, 2) camera px; tangent (N, 2) unit line directions; width_px: the line's
+    width in the camera. With the image 3×3 box-filtered and read bilinearly at q + d·n (n ⟂ tangent):
+    inner = max over d ∈ {0, ±w/4, ±w/2}, outer = min over d = ±w, returns (inner − I(q)) /
+    max(inner − outer, 1) (N,). About 0 on a line's ridge; large where the smoothed ridge sits on an
+    occluding edge that hides half the line (the image at q is the occluder, not the line).
+    """
+    n = len(q)
+    if n == 0:
+        return np.zeros(0)
+    img = np.asarray(image)
+    if img.ndim == 3:
+        from reconstruction.extraction import to_grey_float
+
+        img = to_grey_float(img)
+    if img.dtype not in (np.uint8, np.uint16, np.float32):
+        img = img.astype(np.float32)
+    img = cv2.blur(img, (3, 3))
+    d = np.array([0.0, -0.25, 0.25, -0.5, 0.5, -1.0, 1.0], np.float32) * np.float32(width_px)
+    nrm = np.column_stack([-tangent[:, 1], tangent[:, 0]]).astype(np.float32)
+    qf = q.astype(np.float32)
+    mx = (qf[:, 0, None] + d[None, :] * nrm[:, 0, None]).ravel()
+    my = (qf[:, 1, None] + d[None, :] * nrm[:, 1, None]).ravel()
+    # remap wants maps smaller than 32767 in both directions: lay the probes out in rows of 4096
+    m = len(mx)
+    cols = 4096
+    rows = -(-m // cols)
+    pad = rows * cols - m
+    mx = np.concatenate([mx, np.zeros(pad, np.float32)]).reshape(rows, cols)
+    my = np.concatenate([my, np.zeros(pad, np.float32)]).reshape(rows, cols)
+    v = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel()[:m]
+    v = v.reshape(n, len(d)).astype(np.float32)
+    inner = v[:, :5].max(axis=1)
+    outer = v[:, 5:].min(axis=1)
+    return (inner - v[:, 0]) / np.maximum(inner - outer, 1.0)
 
 
 def _nearest_within(q: np.ndarray, pts: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
@@ -773,6 +820,8 @@ def label_samples(
     options: TraceOptions = TraceOptions(),
     model: RigModel | None = None,
     depth_range_mm: tuple[float, float] = (0.0, np.inf),
+    image: np.ndarray | None = None,
+    line_width_px: float | None = None,
 ) -> SampleLabels:
     """Give every line sample the index of its line, following the visible trace of the line from the
     labelled junctions on it.
@@ -788,7 +837,8 @@ def label_samples(
 
     junction_labels (M, 2) int, UNLABELLED where none. sigma_px: the extraction's smoothing scale.
     seed_radius_px: how far from a junction its seeds may lie (camera px). model, depth_range_mm: for
-    `grow_crossings` (skipped without a model). Vectorised throughout (pixel
+    `grow_crossings` (skipped without a model). image, line_width_px: for the cut-profile test
+    (`max_profile_drop`, skipped without them). Vectorised throughout (pixel
     neighbour tables, sorting, cumulative sums): no loop over samples or traces.
     """
     q = np.asarray(obs.q, np.float64).reshape(-1, 2)
@@ -798,7 +848,7 @@ def label_samples(
     q_out = q.copy()
     seed_jid = np.full(P, -1, np.int64)
     stats = {"samples": P, "mixing_zone": 0, "snapped_to_junction_line": 0, "seeds": 0, "seed_conflicts": 0, "traces": 0,
-             "traces_seeded": 0, "traces_conflicting": 0, "samples_labelled": 0, "samples_unseeded": 0}
+             "traces_seeded": 0, "traces_conflicting": 0, "samples_labelled": 0, "samples_unseeded": 0, "cut_profile": 0}
     valid = ((fam == 1) | (fam == 2)) & np.isfinite(q).all(axis=1)
     if not valid.any():
         return SampleLabels(index, q_out, seed_jid, stats)
@@ -859,7 +909,7 @@ def label_samples(
     # 3. Trace pieces and the nearest seed along each.
     k_idx = np.flatnonzero(kept)
     if len(k_idx):
-        order, piece, ts = _traces(q[k_idx], fam[k_idx], r[k_idx], c[k_idx], (H, W), options)
+        order, piece, ts, tangent = _traces(q[k_idx], fam[k_idx], r[k_idx], c[k_idx], (H, W), options)
         sid = k_idx[order]
         sv = seed[sid]
         has = sv != UNLABELLED
@@ -877,6 +927,11 @@ def label_samples(
         seed_jid[sid[got]] = seed_jid[sid[near[got]]]
         seed_jid[sid[~got]] = -1
         stats["samples_unseeded"] = int((~got).sum())
+        if image is not None and line_width_px and options.max_profile_drop > 0:
+            g = np.flatnonzero(got)
+            cut = profile_drop(image, q[sid[g]], tangent[g], float(line_width_px)) > options.max_profile_drop
+            index[sid[g[cut]]] = np.nan
+            stats["cut_profile"] = int(cut.sum())
     seed_jid[~np.isfinite(index)] = -1
     stats["samples_labelled"] = int(np.isfinite(index).sum())
     return SampleLabels(index, q_out, seed_jid, stats)

@@ -131,7 +131,8 @@ def reconstruct(
         sigma = float(obs.stats.get("sigma_px", sigma_for(model, options.extract)))
         seed_r = float(obs.stats.get("junction_radius_px", 0.4 * model.junction_step_cam_px))
         sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=options.trace, model=model,
-                           depth_range_mm=(options.depth_min_mm, options.depth_max_mm))
+                           depth_range_mm=(options.depth_min_mm, options.depth_max_mm), image=image,
+                           line_width_px=model.line_width_cam_px)
     t_label = time.perf_counter()
     result = _triangulate(image, obs, lab, sl, model, xy_cam_j, options)
     t_tri = time.perf_counter()
@@ -222,7 +223,7 @@ def _triangulate(
         "min_label_separation_px": float(model.min_separation_px),
         "labeller": options.labeller,
         "samples_labelled": int(sample_stats.get("samples_labelled", 0)),
-        "samples_left_out": {k: int(sample_stats.get(k, 0)) for k in ("mixing_zone", "samples_unseeded")},
+        "samples_left_out": {k: int(sample_stats.get(k, 0)) for k in ("mixing_zone", "samples_unseeded", "cut_profile")},
         "samples_snapped": int(sample_stats.get("snapped_to_junction_line", 0)),
         "traces_conflicting": int(sample_stats.get("traces_conflicting", 0)),
         "components_split": int(lab.stats.get("components_split", 0)),

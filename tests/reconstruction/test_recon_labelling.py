@@ -14,6 +14,7 @@ from reconstruction.labelling import (
     label_epipolar,
     label_paper,
     label_samples,
+    profile_drop,
     solve_base_point,
     triangle_shape,
 )
@@ -257,3 +258,27 @@ def test_mixing_zone_samples_are_moved_onto_the_labelled_junctions_fitted_line()
     # unlabelled junction: the biased samples are dropped, nothing is labelled
     sl0 = label_samples(obs, np.array([[UNLABELLED, UNLABELLED]]), sigma_px=1.5, seed_radius_px=12.0)
     assert np.isnan(sl0.index).all() and sl0.stats["mixing_zone"] > 10
+
+
+def test_profile_drop_is_zero_on_a_ridge_and_large_where_an_occluding_edge_hides_half_the_line():
+    # A vertical bright bar 10 px wide (grey 200 on 10), blurred like a lens (σ = 1 px).
+    import cv2
+
+    w = 10.0
+    u = np.arange(200, dtype=np.float64)
+    bar = np.where(np.abs(u - 100.0) <= w / 2, 200.0, 10.0)
+    img = np.tile(bar, (60, 1)).astype(np.float32)
+    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    tangent = np.tile([[0.0, 1.0]], (3, 1))
+    q = np.array([[100.0, 30.0], [101.2, 30.0], [98.5, 30.0]])  # on the ridge and within the plateau
+    drop = profile_drop(img, q, tangent, w)
+    assert np.all(drop < 0.05), drop
+    # An occluder (grey 80) covers the bar's right half from u = 100 on. On the paper-intermediate scene
+    # the smoothed ridge of such a half-hidden line fell on the occluder's pixels, just past the edge:
+    # there the image is the occluder's, far below the line's brightest point half a width away.
+    occl = np.tile(np.where(u >= 100.0, 80.0, np.where(np.abs(u - 100.0) <= w / 2, 200.0, 10.0)), (60, 1)).astype(np.float32)
+    occl = cv2.GaussianBlur(occl, (0, 0), 1.0)
+    t1 = tangent[:1]
+    assert profile_drop(occl, np.array([[100.5, 30.0]]), t1, w)[0] > 2 * TraceOptions().max_profile_drop
+    # inside the visible half, away from the edge, the sample is still on the line's light
+    assert profile_drop(occl, np.array([[97.5, 30.0]]), t1, w)[0] < 0.05
