@@ -128,30 +128,44 @@ def relative_labels(n_junctions: int, edges: np.ndarray, delta: np.ndarray) -> t
 
 
 def _propagate(n: int, edges: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Labels relative to the lowest-numbered junction of each component along a breadth-first spanning
+    tree, and the component ids. One breadth-first search from a virtual node joined to every component's
+    root; the labels are the sums of the tree edges' deltas up to the root (pointer doubling). No loop
+    over junctions."""
     rel = np.zeros((n, 2), np.int64)
     if n == 0:
         return rel, np.zeros(0, np.int64)
+    edges = np.asarray(edges, np.int64).reshape(-1, 2)
+    delta = np.asarray(delta, np.int64).reshape(-1, 2)
     a, b = edges[:, 0], edges[:, 1]
-    g = coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)).tocsr()
-    ncomp, comp = connected_components(g, directed=False)
-    # Delta lookup for both directions.
-    dmap: dict[tuple[int, int], tuple[int, int]] = {}
-    for (x, y), (di, dj) in zip(edges.tolist(), delta.tolist()):
-        dmap[(x, y)] = (di, dj)
-        dmap[(y, x)] = (-di, -dj)
-    seen = np.zeros(ncomp, bool)
-    for root in range(n):
-        c = comp[root]
-        if seen[c]:
-            continue
-        seen[c] = True
-        order, pred = breadth_first_order(g, root, directed=False, return_predecessors=True)
-        for node in order[1:].tolist():
-            p = int(pred[node])
-            di, dj = dmap[(p, node)]
-            rel[node, 0] = rel[p, 0] + di
-            rel[node, 1] = rel[p, 1] + dj
-    return rel, comp.astype(np.int64)
+    g = coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(n, n)).tocsr()
+    _, comp = connected_components(g, directed=False)
+    comp = comp.astype(np.int64)
+    if len(edges) == 0:
+        return rel, comp
+    _, roots = np.unique(comp, return_index=True)
+    ga = np.concatenate([a, np.full(len(roots), n)])
+    gb = np.concatenate([b, roots])
+    g2 = coo_matrix((np.ones(len(ga), np.int8), (ga, gb)), shape=(n + 1, n + 1)).tocsr()
+    _, pred = breadth_first_order(g2, n, directed=False, return_predecessors=True)
+    pred = pred[:n].astype(np.int64)
+    child = np.flatnonzero(pred < n)  # every node that is not a root (the roots' predecessor is the virtual node)
+    # delta of the tree edge pred -> child: look the pair up among the edges in both directions
+    keys = np.concatenate([a * n + b, b * n + a])
+    vals = np.concatenate([delta, -delta])
+    srt = np.argsort(keys, kind="stable")
+    pos = np.searchsorted(keys[srt], pred[child] * n + child)
+    acc = np.zeros((n, 2), np.int64)
+    acc[child] = vals[srt[pos]]
+    anc = np.arange(n)
+    anc[child] = pred[child]
+    while True:  # pointer doubling: acc[k] = sum of deltas from anc[k] down to k
+        nxt = anc[anc]
+        if np.array_equal(nxt, anc):
+            break
+        acc = acc + acc[anc]
+        anc = nxt
+    return acc, comp
 
 
 def _epipolar_residual_px(model: RigModel, lines: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
@@ -324,8 +338,9 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             continue
         stats["components_split"] += 1
         sel = np.isin(edges[:, 0], outl) & np.isin(edges[:, 1], outl)
-        idx = {int(v): k for k, v in enumerate(outl.tolist())}
-        sub_e = np.array([[idx[int(a)], idx[int(b)]] for a, b in edges[sel].tolist()], np.int64).reshape(-1, 2)
+        srt = np.sort(outl)
+        sub_e = np.searchsorted(srt, edges[sel]).reshape(-1, 2)
+        outl = srt
         sub_rel, sub_comp = _propagate(len(outl), sub_e, delta[sel])
         rel[outl] = sub_rel
         for g in _groups(sub_comp):
@@ -575,19 +590,28 @@ def _traces(q: np.ndarray, fam: np.ndarray, r: np.ndarray, c: np.ndarray, shape:
     the unit chord direction through each (in order's order)."""
     n = len(q)
     H, W = shape
-    ids = np.full(2 * H * W, -1, np.int32)
+    # The table is left uninitialised (filling 2·H·W entries costs more than the lookups): an entry is
+    # valid only if it names a sample that sits in that very cell.
+    ids = np.empty(2 * H * W, np.int32)
     flat = (fam - 1) * (H * W) + r * W + c
     ids[flat] = np.arange(n, dtype=np.int32)
+
+    def table(cells: np.ndarray) -> np.ndarray:
+        nb = ids[cells]
+        ok = (nb >= 0) & (nb < n)
+        ok[ok] = flat[nb[ok]] == cells[ok]
+        return np.where(ok, nb, -1)
+
     a_l, b_l = [], []
     for step in (1, W - 1, W, W + 1):  # the forward half of the 8-neighbourhood
-        nb = ids[flat + step]
+        nb = table(flat + step)
         ok = np.flatnonzero(nb >= 0)
         a_l.append(ok)
         b_l.append(nb[ok])
     # Two samples in one pixel: the one the table lost looks at its whole 3×3 neighbourhood (rare).
     dup = np.flatnonzero(ids[flat] != np.arange(n))
     for step in (-W - 1, -W, -W + 1, -1, 0, 1, W - 1, W, W + 1):
-        nb = ids[flat[dup] + step]
+        nb = table(flat[dup] + step)
         ok = np.flatnonzero(nb >= 0)
         a_l.append(dup[ok])
         b_l.append(nb[ok])
@@ -667,8 +691,8 @@ def profile_drop(image: np.ndarray, q: np.ndarray, tangent: np.ndarray, width_px
     d = np.array([0.0, -0.25, 0.25, -0.5, 0.5, -1.0, 1.0], np.float32) * np.float32(width_px)
     nrm = np.column_stack([-tangent[:, 1], tangent[:, 0]]).astype(np.float32)
     qf = q.astype(np.float32)
-    mx = (qf[:, 0, None] + d[None, :] * nrm[:, 0, None]).ravel()
-    my = (qf[:, 1, None] + d[None, :] * nrm[:, 1, None]).ravel()
+    mx = (qf[None, :, 0] + d[:, None] * nrm[None, :, 0]).ravel()  # probe-major (7, n): fast reductions
+    my = (qf[None, :, 1] + d[:, None] * nrm[None, :, 1]).ravel()
     # remap wants maps smaller than 32767 in both directions: lay the probes out in rows of 4096
     m = len(mx)
     cols = 4096
@@ -677,10 +701,10 @@ def profile_drop(image: np.ndarray, q: np.ndarray, tangent: np.ndarray, width_px
     mx = np.concatenate([mx, np.zeros(pad, np.float32)]).reshape(rows, cols)
     my = np.concatenate([my, np.zeros(pad, np.float32)]).reshape(rows, cols)
     v = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel()[:m]
-    v = v.reshape(n, len(d)).astype(np.float32)
-    inner = v[:, :5].max(axis=1)
-    outer = v[:, 5:].min(axis=1)
-    return (inner - v[:, 0]) / np.maximum(inner - outer, 1.0)
+    v = v.reshape(len(d), n).astype(np.float32)
+    inner = np.maximum(np.maximum(np.maximum(v[0], v[1]), np.maximum(v[2], v[3])), v[4])
+    outer = np.minimum(v[5], v[6])
+    return (inner - v[0]) / np.maximum(inner - outer, 1.0)
 
 
 def _nearest_within(q: np.ndarray, pts: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:

@@ -7,7 +7,7 @@ Built once per (ProCam, GridPattern) pair (`rig_model`, cached) and read-only af
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -62,7 +62,7 @@ class RigModel:
     sheet_normals: np.ndarray | None = None
     sheet_end_normals: np.ndarray | None = None
 
-    @property
+    @cached_property
     def cam_per_proj_px(self) -> float:
         """Typical camera pixels per projector pixel (square root of the Jacobian's determinant), at z_ref_mm."""
         det = np.abs(np.linalg.det(self.J_proj_cam.reshape(-1, 2, 2)))
