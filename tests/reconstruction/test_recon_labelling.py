@@ -15,6 +15,7 @@ from reconstruction.labelling import (
     label_paper,
     label_samples,
     profile_drop,
+    relative_labels,
     solve_base_point,
     triangle_shape,
 )
@@ -282,3 +283,36 @@ def test_profile_drop_is_zero_on_a_ridge_and_large_where_an_occluding_edge_hides
     assert profile_drop(occl, np.array([[100.5, 30.0]]), t1, w)[0] > 2 * TraceOptions().max_profile_drop
     # inside the visible half, away from the edge, the sample is still on the line's light
     assert profile_drop(occl, np.array([[97.5, 30.0]]), t1, w)[0] < 0.05
+
+
+def test_relative_labels_recover_a_grid_up_to_one_offset_per_component_and_drop_a_contradiction():
+    # Two grid patches (8×8 and 5×5) with shuffled junction ids, every neighbour pair joined, edge
+    # directions random; one extra edge contradicts the grid.
+    rng = np.random.default_rng(3)
+    pts = [(i, j) for i in range(8) for j in range(8)] + [(100 + i, j) for i in range(5) for j in range(5)]
+    perm = rng.permutation(len(pts))
+    lab = np.array(pts)[np.argsort(perm)]  # lab[id] = true label of junction id
+    where = {tuple(v): k for k, v in enumerate(lab.tolist())}
+    edges, delta = [], []
+    for (i, j), a in where.items():
+        for di, dj in ((1, 0), (0, 1)):
+            b = where.get((i + di, j + dj))
+            if b is not None:
+                e = (a, b) if rng.random() < 0.5 else (b, a)
+                edges.append(e)
+                delta.append(lab[e[1]] - lab[e[0]])
+    a0, b0 = where[(3, 3)], where[(3, 4)]
+    edges.append((a0, b0))
+    delta.append((5, 5))  # contradicts
+    rel, comp, removed = relative_labels(len(lab), np.array(edges), np.array(delta))
+    # clean_edges drops every edge at both ends of the contradicting one: those two junctions are isolated
+    assert removed == 1 + 4 + 3
+    sizes = np.bincount(comp)
+    assert sizes[comp[a0]] == 1 and sizes[comp[b0]] == 1
+    assert sorted(sizes[sizes > 1].tolist()) == [25, 62]
+    for c in np.unique(comp):
+        m = np.flatnonzero(comp == c)
+        off = lab[m] - rel[m]
+        # one offset for the whole component: the lowest-numbered junction is the root (label 0, 0)
+        assert (off == off[0]).all(), np.unique(off, axis=0)
+        assert (rel[m.min()] == 0).all()
