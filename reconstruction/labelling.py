@@ -237,18 +237,24 @@ def _choose_offset(
     score = np.minimum(res * res, cap2).mean(axis=1)
     ranked = np.argsort(score, kind="stable")
     # Walk the ranking: the first two offsets that put the surface inside the working volume.
+    # Walk the ranking in chunks of offsets triangulated together, until two pass.
     passing: list[tuple[int, np.ndarray]] = []
-    for c in ranked[: min(len(ranked), 16)].tolist():
-        xy_p = model.junction_xy(iic[c], jjc[c])
-        p, _ = triangulate_rays(model.procam, xy_cam, xy_p)
-        z = depth_cam(model.procam, p)
-        inside = (z >= options.depth_min_mm) & (z <= options.depth_max_mm) & in_pat[c]
-        if inside.mean() >= options.min_inside_fraction:
-            passing.append((c, inside))
-            if len(passing) == 2:
-                break
-        elif not passing:
-            stats["out_of_depth_range"] += 1
+    top = ranked[: min(len(ranked), 16)]
+    for k0 in range(0, len(top), 4):
+        chunk = top[k0 : k0 + 4]
+        xy_p = model.junction_xy(iic[chunk].ravel(), jjc[chunk].ravel())
+        p, _ = triangulate_rays(model.procam, np.tile(xy_cam, (len(chunk), 1)), xy_p)
+        z = depth_cam(model.procam, p).reshape(len(chunk), m)
+        inside_c = (z >= options.depth_min_mm) & (z <= options.depth_max_mm) & in_pat[chunk]
+        ok_c = inside_c.mean(axis=1) >= options.min_inside_fraction
+        for k in range(len(chunk)):
+            if ok_c[k]:
+                passing.append((int(chunk[k]), inside_c[k]))
+            elif not passing:
+                stats["out_of_depth_range"] += 1
+        if len(passing) >= 2:
+            passing = passing[:2]
+            break
     if not passing:
         return _Choice("no_admissible_offset")
     best, inside = passing[0]
@@ -636,8 +642,9 @@ def _traces(q: np.ndarray, fam: np.ndarray, r: np.ndarray, c: np.ndarray, shape:
     qs = q[order]
     ts = t[order]
     k = np.arange(n)
-    first = np.searchsorted(cs, cs, side="left")
-    last = np.searchsorted(cs, cs, side="right") - 1
+    starts = np.searchsorted(cs, np.arange(ncomp + 1))  # every component id occurs (connected_components)
+    first = starts[cs]
+    last = starts[cs + 1] - 1
     w = max(1, int(round(options.direction_px)))
     back = qs - qs[np.maximum(k - w, first)]  # chord from w samples behind
     fwd = qs[np.minimum(k + w, last)] - qs  # chord to w samples ahead
