@@ -571,6 +571,13 @@ class TraceOptions:
     grow_reach: float = 2.5
     max_residual_px: float = 0.3
     max_profile_drop: float = 0.15
+    cross_pieces: bool = True
+    cross_both_ends: bool = True
+    cross_rounds: int = 6
+    cross_min_samples: int = 4
+    cross_radius: float = 0.6
+    cross_residual_px: float = 1.0
+    cross_trim_sigma: float = 1.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -827,6 +834,119 @@ def _grown_seeds(obs, lab, model: RigModel, q, fam, free, depth_range_mm, option
     return tuple(np.concatenate(a) for a in zip(*out))
 
 
+def _nearest_line(model: RigModel, family: np.ndarray, uv_proj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest line of `family` (N,) to projector pixels uv_proj (N, 2), not clamped to the pattern:
+    its index (N,) int and the perpendicular distance to its centre in projector px (N,) (a point beyond
+    the outermost line is that line's distance away, so it fails a residual test instead of snapping)."""
+    pat = model.pattern
+    uv = np.asarray(uv_proj, np.float64).reshape(-1, 2)
+    x = uv[:, 0] - pat.centre_px[0]
+    y = uv[:, 1] - pat.centre_px[1]
+    idx = np.zeros(len(uv), np.int64)
+    dist = np.full(len(uv), np.inf)
+    for f, n in ((1, pat.n1), (2, pat.n2)):
+        sel = np.flatnonzero(family == f)
+        if len(sel) == 0:
+            continue
+        offs = np.asarray(pat.offsets_px(f), np.float64)
+        s = y[sel] - n * x[sel]
+        k = np.clip(np.searchsorted(offs, s), 1, len(offs) - 1)
+        k = np.where(np.abs(s - offs[k - 1]) <= np.abs(s - offs[k]), k - 1, k)
+        ok = np.isfinite(s)
+        idx[sel[ok]] = pat.indices[k[ok]]
+        dist[sel[ok]] = np.abs(s[ok] - offs[k[ok]]) / np.hypot(1.0, n)
+    return idx, dist
+
+
+def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model: RigModel, depth_range_mm,
+                    radius_px: float, trim_px: float, options: TraceOptions) -> int:
+    """Label unseeded trace pieces from the crossings at their ends (TraceOptions.cross_pieces).
+
+    Every piece ends at a crossing's gap (the mixing zone is cut out of the traces). Where a labelled
+    sample of the other family (index m) lies near a piece's end, the crossing c is the intersection of
+    the two samples' tangent lines; the camera ray of c meets light sheet m at a point whose projector
+    position must lie on a line of the piece's family: its index k is the piece's, and the distance to
+    that line's centre is the crossing's epipolar residual (≤ cross_residual_px), the point inside the depth
+    range. A piece is labelled only if both its ends give the same k (`cross_both_ends`). Repeated
+    `cross_rounds` times, newly labelled pieces serving as the next round's neighbours. Writes index and
+    seed_jid (sample ids, in place); returns the number of samples labelled.
+    """
+    n_pieces = int(piece[-1]) + 1 if len(piece) else 0
+    if n_pieces == 0:
+        return 0
+    starts = np.searchsorted(piece, np.arange(n_pieces + 1))
+    first, last = starts[:-1], starts[1:] - 1
+    count = last - first + 1
+    f_piece = fam[sid[first]]
+    total = 0
+    for _ in range(options.cross_rounds):
+        lab_pos = np.isfinite(index[sid])
+        done = np.bincount(piece[lab_pos], minlength=n_pieces) > 0
+        todo = np.flatnonzero(~done & (count >= options.cross_min_samples))
+        if len(todo) == 0:
+            break
+        nt = len(todo)
+        end_pos = np.concatenate([first[todo], last[todo]])  # both ends of every piece to do
+        sign = np.repeat([-1.0, 1.0], nt)
+        e = q[sid[end_pos]]
+        te = tangent[end_pos]
+        fe = fam[sid[end_pos]]
+        k_end = np.full(2 * nt, UNLABELLED, np.int64)
+        jid_end = np.full(2 * nt, -1, np.int64)
+        for f in (1, 2):
+            sel = np.flatnonzero(fe == f)
+            cand = np.flatnonzero(lab_pos & (fam[sid] == 3 - f))
+            if len(sel) == 0 or len(cand) == 0:
+                continue
+            d, k = cKDTree(q[sid[cand]]).query(e[sel], distance_upper_bound=radius_px)
+            hit = np.isfinite(d)
+            sel, o = sel[hit], cand[k[hit]]
+            s_q, ts = q[sid[o]], tangent[o]
+            # e + a·te = s_q + b·ts
+            den = te[sel, 0] * ts[:, 1] - te[sel, 1] * ts[:, 0]
+            w = s_q - e[sel]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                a = (w[:, 0] * ts[:, 1] - w[:, 1] * ts[:, 0]) / den
+                b = (w[:, 0] * te[sel, 1] - w[:, 1] * te[sel, 0]) / den
+            ok = (np.abs(den) > np.sin(np.deg2rad(20))) & (np.abs(a) <= radius_px) & (np.abs(b) <= radius_px)
+            ok &= sign[sel] * a >= -1.0  # the crossing lies beyond the piece's end, not inside it
+            sel, o, a = sel[ok], o[ok], a[ok]
+            if len(sel) == 0:
+                continue
+            c = e[sel] + a[:, None] * te[sel]
+            m = index[sid[o]].astype(np.int64)
+            p = model.intersect_light_sheets(model.cam_normalised(c), np.full(len(sel), 3 - f), m)
+            z = depth_cam(model.procam, p)
+            kk, res = _nearest_line(model, np.full(len(sel), f), model.procam.projector.project(p))
+            good = (res <= options.cross_residual_px) & (z >= depth_range_mm[0]) & (z <= depth_range_mm[1])
+            k_end[sel[good]] = kk[good]
+            jid_end[sel[good]] = seed_jid[sid[o[good]]]
+        votes = [(k_end[:nt], jid_end[:nt]), (k_end[nt:], jid_end[nt:])]
+        (k0, j0), (k1, j1) = votes
+        has0, has1 = k0 != UNLABELLED, k1 != UNLABELLED
+        if options.cross_both_ends:
+            take = has0 & has1 & (k0 == k1)
+        else:
+            take = (has0 | has1) & ~(has0 & has1 & (k0 != k1))
+        if not take.any():
+            break
+        kv = np.where(has0, k0, k1)[take]
+        jv = np.where(has0, j0, j1)[take]
+        pcs = todo[take]
+        val = np.full(n_pieces, UNLABELLED, np.int64)
+        jval = np.full(n_pieces, -1, np.int64)
+        val[pcs] = kv
+        jval[pcs] = jv
+        pos = np.flatnonzero(val[piece] != UNLABELLED)
+        # the piece's ends next to the crossings: the other line's profile pulls the ridge (mixing zone)
+        inner = np.minimum(ts_all[pos] - ts_all[first[piece[pos]]], ts_all[last[piece[pos]]] - ts_all[pos]) >= trim_px
+        pos = pos[inner]
+        index[sid[pos]] = val[piece[pos]]
+        seed_jid[sid[pos]] = jval[piece[pos]]
+        total += len(pos)
+    return total
+
+
 def _nearest_seed(piece: np.ndarray, t: np.ndarray, has: np.ndarray) -> np.ndarray:
     """For positions in sorted trace order (piece non-decreasing, t the position along it), the position of
     the nearest seed (has) on the same piece, or −1."""
@@ -957,6 +1077,11 @@ def label_samples(
         index[sid[got]] = sv[near[got]]
         seed_jid[sid[got]] = seed_jid[sid[near[got]]]
         seed_jid[sid[~got]] = -1
+        if options.cross_pieces and model is not None:
+            stats["samples_from_crossings"] = _crossing_seeds(
+                q, fam, sid, piece, ts, tangent, index, seed_jid, model, depth_range_mm,
+                options.cross_radius * model.junction_step_cam_px, options.cross_trim_sigma * sigma_px, options)
+            got = np.isfinite(index[sid])
         stats["samples_unseeded"] = int((~got).sum())
         if image is not None and line_width_px and options.max_profile_drop > 0:
             g = np.flatnonzero(got)

@@ -179,3 +179,34 @@ def _coverage(truth, pattern: GridPattern, q_cam: np.ndarray) -> float:
     mask = np.full(target.shape, 255, np.uint8)
     mask[np.clip(np.rint(q_cam[:, 1]).astype(int), 0, target.shape[0] - 1), np.clip(np.rint(q_cam[:, 0]).astype(int), 0, target.shape[1] - 1)] = 0
     return float((cv2.distanceTransform(mask, cv2.DIST_L2, 3)[target] <= 1.5).mean())
+
+
+def test_pieces_labelled_from_the_crossings_at_their_ends_are_on_their_true_line(small_scene):
+    # TraceOptions.cross_pieces (decision 0052): unseeded trace pieces take the index of the line the
+    # crossings at both their ends put them on. Against simulator truth: every sample it labels is on the
+    # line it was given, and it adds coverage.
+    from dataclasses import replace
+
+    from reconstruction.labelling import TraceOptions
+
+    s = small_scene
+    base = ReconstructOptions(depth_min_mm=s.depth_range_mm[0], depth_max_mm=s.depth_range_mm[1])
+    on = reconstruct(s.image, s.procam, s.pattern, options=base)
+    off = reconstruct(s.image, s.procam, s.pattern, options=replace(base, trace=TraceOptions(cross_pieces=False)))
+    key_off = {(round(float(a), 3), round(float(b), 3)) for a, b in off.q_cam[off.family > 0]}
+    smp = np.flatnonzero(on.family > 0)
+    new = np.array([(round(float(a), 3), round(float(b), 3)) not in key_off for a, b in on.q_cam[smp]])
+    assert new.sum() > 50, new.sum()
+    idx = smp[new]
+    q = on.q_cam[idx].astype(np.float64)
+    qp = _sample(s.truth.q_proj, q)
+    fam = on.family[idx]
+    n = np.where(fam == 1, s.pattern.n1, s.pattern.n2)
+    true_index = ((qp[:, 1] - s.pattern.centre_px[1]) - n * (qp[:, 0] - s.pattern.centre_px[0])) / s.pattern.pitch_px
+    own = np.where(fam == 1, on.label[idx, 0], on.label[idx, 1])
+    known = np.isfinite(true_index)
+    assert known.sum() > 0.9 * len(idx)
+    assert np.max(np.abs(true_index[known] - own[known])) < 0.3
+    cov_on = _coverage(s.truth, s.pattern, on.q_cam.astype(np.float64))
+    cov_off = _coverage(s.truth, s.pattern, off.q_cam.astype(np.float64))
+    assert cov_on > cov_off + 0.005, (cov_on, cov_off)
