@@ -578,6 +578,8 @@ class TraceOptions:
     cross_radius: float = 0.6
     cross_residual_px: float = 1.0
     cross_trim_sigma: float = 1.0
+    fill_gaps: bool = True
+    fill_anchor: int = 3
 
 
 @dataclass(frozen=True, eq=False)
@@ -947,6 +949,76 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
     return total
 
 
+def _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, reach_px: float, options: TraceOptions) -> int:
+    """Fill the gaps at crossings between two labelled pieces of one line (TraceOptions.fill_gaps).
+
+    The samples of a crossing's gap (mixing zone, or trimmed from a crossing-labelled piece's end) lie
+    where the other line's profile pulls the ridge sideways. A candidate (sample ids) of family f is
+    filled only when it lies between the ends of two labelled pieces of family f that carry the same
+    index and face each other across the gap (each end at most 2·reach_px away): the line is seen on both
+    sides of the crossing with one index, so the gap is that line's. (A gap next to one labelled piece
+    only, e.g. at an occluding edge where the background's lines run past, stays empty: checked against
+    simulator truth.) The sample is moved onto the chord between the two anchors (the labelled samples
+    `fill_anchor` samples inside each end) if it lies within seed_lateral_px of it. Writes index,
+    seed_jid and q_out in place; returns the number of samples filled."""
+    lab_pos = np.flatnonzero(np.isfinite(index[sid]))
+    if len(lab_pos) == 0 or len(candidates) == 0:
+        return 0
+    pl = piece[lab_pos]
+    _, f_first = np.unique(pl, return_index=True)
+    f_last = np.r_[f_first[1:], len(pl)] - 1
+    a = options.fill_anchor
+    anc0 = lab_pos[np.minimum(f_first + a, f_last)]
+    anc1 = lab_pos[np.maximum(f_last - a, f_first)]
+    anchors = np.concatenate([anc0, anc1])
+    out_dir = np.concatenate([-tangent[anc0], tangent[anc1]])  # pointing out of the piece
+    ends = np.concatenate([lab_pos[f_first], lab_pos[f_last]])
+    end_piece = piece[ends]
+    f_end = fam[sid[ends]]
+    total = 0
+    nb = 6
+    for f in (1, 2):
+        ea = np.flatnonzero(f_end == f)
+        cs = np.flatnonzero(fam[candidates] == f)
+        if len(ea) < 2 or len(cs) == 0:
+            continue
+        d, k = cKDTree(q[sid[ends[ea]]]).query(q[candidates[cs]], k=nb, distance_upper_bound=2 * reach_px)
+        valid_nb = np.isfinite(d)
+        e = ea[np.minimum(k, len(ea) - 1)]  # (C, nb) end ids
+        v = q[candidates[cs]][:, None, :] - q[sid[ends[e]]]
+        u = out_dir[e]
+        along = v[..., 0] * u[..., 0] + v[..., 1] * u[..., 1]
+        lateral = np.abs(v[..., 0] * u[..., 1] - v[..., 1] * u[..., 0])
+        beyond = valid_nb & (along > 0) & (lateral <= 2 * options.seed_lateral_px)
+        # the nearest end beyond which the sample lies, and the nearest facing end of another piece with its index
+        has = beyond.any(axis=1)
+        i1 = np.argmax(beyond, axis=1)
+        r = np.arange(len(cs))
+        e1 = e[r, i1]
+        other = beyond & (end_piece[e] != end_piece[e1][:, None]) & (index[sid[ends[e]]] == index[sid[ends[e1]]][:, None])
+        other &= (u[..., 0] * u[r, i1, 0][:, None] + u[..., 1] * u[r, i1, 1][:, None]) < -0.9  # facing each other
+        has &= other.any(axis=1)
+        e2 = e[r, np.argmax(other, axis=1)]
+        cs, e1, e2 = cs[has], e1[has], e2[has]
+        if len(cs) == 0:
+            continue
+        p1, p2 = q[sid[anchors[e1]]], q[sid[anchors[e2]]]
+        chord = p2 - p1
+        L = np.maximum(np.hypot(chord[:, 0], chord[:, 1]), 1e-9)
+        uc = chord / L[:, None]
+        w = q[candidates[cs]] - p1
+        t = w[:, 0] * uc[:, 0] + w[:, 1] * uc[:, 1]
+        lat = np.abs(w[:, 0] * uc[:, 1] - w[:, 1] * uc[:, 0])
+        ok = (lat <= options.seed_lateral_px) & (t > 0) & (t < L)
+        cs, e1, t, p1, uc = cs[ok], e1[ok], t[ok], p1[ok], uc[ok]
+        ids = candidates[cs]
+        q_out[ids] = p1 + t[:, None] * uc
+        index[ids] = index[sid[ends[e1]]]
+        seed_jid[ids] = seed_jid[sid[ends[e1]]]
+        total += len(ids)
+    return total
+
+
 def _nearest_seed(piece: np.ndarray, t: np.ndarray, has: np.ndarray) -> np.ndarray:
     """For positions in sorted trace order (piece non-decreasing, t the position along it), the position of
     the nearest seed (has) on the same piece, or −1."""
@@ -1088,6 +1160,22 @@ def label_samples(
             cut = profile_drop(image, q[sid[g]], tangent[g], float(line_width_px)) > options.max_profile_drop
             index[sid[g[cut]]] = np.nan
             stats["cut_profile"] = int(cut.sum())
+            profile_cut = np.zeros(P, bool)
+            profile_cut[sid[g[cut]]] = True
+        else:
+            profile_cut = np.zeros(P, bool)
+        if options.fill_gaps:
+            cand = np.flatnonzero(valid & ~np.isfinite(index) & ~profile_cut)
+            in_trace = np.zeros(P, bool)
+            in_trace[sid] = True
+            lab_piece = np.zeros(int(piece[-1]) + 1, bool)
+            lab_piece[piece[np.isfinite(index[sid])]] = True
+            piece_of = np.full(P, -1, np.int64)
+            piece_of[sid] = piece
+            # gap samples: the mixing zone, and the unlabelled ends of labelled pieces
+            cand = cand[~in_trace[cand] | lab_piece[np.maximum(piece_of[cand], 0)]]
+            reach = (options.mix_sigma + options.cross_trim_sigma) * sigma_px + 2.0
+            stats["samples_gap_filled"] = _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, cand, reach, options)
     seed_jid[~np.isfinite(index)] = -1
     stats["samples_labelled"] = int(np.isfinite(index).sum())
     return SampleLabels(index, q_out, seed_jid, stats)
