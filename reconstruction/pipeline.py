@@ -225,6 +225,8 @@ def _triangulate(
         "samples_labelled": int(sample_stats.get("samples_labelled", 0)),
         "samples_left_out": {k: int(sample_stats.get(k, 0)) for k in ("mixing_zone", "samples_unseeded", "cut_profile")},
         "samples_snapped": int(sample_stats.get("snapped_to_junction_line", 0)),
+        "samples_from_crossings": int(sample_stats.get("samples_from_crossings", 0)),
+        "samples_gap_filled": int(sample_stats.get("samples_gap_filled", 0)),
         "traces_conflicting": int(sample_stats.get("traces_conflicting", 0)),
         "components_split": int(lab.stats.get("components_split", 0)),
     }

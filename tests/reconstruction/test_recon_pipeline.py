@@ -181,10 +181,11 @@ def _coverage(truth, pattern: GridPattern, q_cam: np.ndarray) -> float:
     return float((cv2.distanceTransform(mask, cv2.DIST_L2, 3)[target] <= 1.5).mean())
 
 
-def test_pieces_labelled_from_the_crossings_at_their_ends_are_on_their_true_line(small_scene):
-    # TraceOptions.cross_pieces (decision 0052): unseeded trace pieces take the index of the line the
-    # crossings at both their ends put them on. Against simulator truth: every sample it labels is on the
-    # line it was given, and it adds coverage.
+def test_pieces_labelled_from_the_crossings_at_their_ends_and_filled_gaps_are_on_their_true_line(small_scene):
+    # TraceOptions.cross_pieces and fill_gaps (decision 0052): unseeded trace pieces take the index of the
+    # line the crossings at both their ends put them on; a crossing's gap between two pieces of one line
+    # with one index is filled. Against simulator truth: every sample they add is on the line it was
+    # given and within 0.5 % of the true surface, and they add coverage.
     from dataclasses import replace
 
     from reconstruction.labelling import TraceOptions
@@ -192,7 +193,7 @@ def test_pieces_labelled_from_the_crossings_at_their_ends_are_on_their_true_line
     s = small_scene
     base = ReconstructOptions(depth_min_mm=s.depth_range_mm[0], depth_max_mm=s.depth_range_mm[1])
     on = reconstruct(s.image, s.procam, s.pattern, options=base)
-    off = reconstruct(s.image, s.procam, s.pattern, options=replace(base, trace=TraceOptions(cross_pieces=False)))
+    off = reconstruct(s.image, s.procam, s.pattern, options=replace(base, trace=TraceOptions(cross_pieces=False, fill_gaps=False)))
     key_off = {(round(float(a), 3), round(float(b), 3)) for a, b in off.q_cam[off.family > 0]}
     smp = np.flatnonzero(on.family > 0)
     new = np.array([(round(float(a), 3), round(float(b), 3)) not in key_off for a, b in on.q_cam[smp]])
@@ -207,6 +208,11 @@ def test_pieces_labelled_from_the_crossings_at_their_ends_are_on_their_true_line
     known = np.isfinite(true_index)
     assert known.sum() > 0.9 * len(idx)
     assert np.max(np.abs(true_index[known] - own[known])) < 0.3
+    p_true = _sample(s.truth.p_proj, q)
+    ok = np.isfinite(p_true).all(axis=1)
+    rel = np.linalg.norm(on.points_proj[idx][ok] - p_true[ok], axis=1) / np.linalg.norm(p_true[ok], axis=1)
+    assert rel.max() < 0.005, rel.max()
+    assert on.stats["samples_gap_filled"] > 20, on.stats["samples_gap_filled"]
     cov_on = _coverage(s.truth, s.pattern, on.q_cam.astype(np.float64))
     cov_off = _coverage(s.truth, s.pattern, off.q_cam.astype(np.float64))
     assert cov_on > cov_off + 0.005, (cov_on, cov_off)
