@@ -439,8 +439,12 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     ids[flat_all[fidx]] = fidx
     # each sample looks ahead along its own line: one and two steps along the dominant axis of its
     # tangent, the two pixels across that the line can reach (4 probes instead of the 12 of a 5x3 window)
-    tx_ = -nrm[fidx, 1]
-    ty_ = nrm[fidx, 0]
+    qx32 = q[:, 0].astype(np.float32)
+    qy32 = q[:, 1].astype(np.float32)
+    nx32 = nrm[:, 0].astype(np.float32)
+    ny32 = nrm[:, 1].astype(np.float32)
+    tx_ = -ny32[fidx]
+    ty_ = nx32[fidx]
     xdom = np.abs(tx_) >= np.abs(ty_)
     with np.errstate(divide="ignore", invalid="ignore"):
         slope = np.where(xdom, ty_ / tx_, tx_ / ty_)
@@ -457,10 +461,14 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
             dst_l.append(o[hit_])
     a_ = np.concatenate(src_l)
     b_ = np.concatenate(dst_l)
-    dq = q[b_] - q[a_]
-    same = (fam[a_] == fam[b_]) & (np.abs(np.einsum("ij,ij->i", nrm[a_], nrm[b_])) >= 0.9)
-    across = np.maximum(np.abs(np.einsum("ij,ij->i", dq, nrm[a_])), np.abs(np.einsum("ij,ij->i", dq, nrm[b_])))
-    link = same & (across <= 0.5 + 0.25 * np.hypot(dq[:, 0], dq[:, 1]))
+    # the same line: same family, parallel normals, small offset across the line (float32, one array per
+    # coordinate: this runs on every probe hit)
+    na_x, na_y, nb_x, nb_y = nx32[a_], ny32[a_], nx32[b_], ny32[b_]
+    dqx = qx32[b_] - qx32[a_]
+    dqy = qy32[b_] - qy32[a_]
+    across = np.maximum(np.abs(dqx * na_x + dqy * na_y), np.abs(dqx * nb_x + dqy * nb_y))
+    link = (np.abs(na_x * nb_x + na_y * nb_y) >= 0.9) & (across <= 0.5 + 0.25 * np.sqrt(dqx * dqx + dqy * dqy))
+    link &= fam[a_] == fam[b_]
     seg = np.full(P, -1, np.int64)
     S = 0
     if len(fidx):
