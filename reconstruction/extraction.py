@@ -263,11 +263,26 @@ def _stamp(centres: np.ndarray, radius: float, cs: float, shape: tuple[int, int]
     return grid.reshape(gh, gw)
 
 
+def _look_xy(grid: np.ndarray, px: np.ndarray, py: np.ndarray, cs: float) -> np.ndarray:
+    """As `_look`, for points given as two coordinate arrays."""
+    cu_ = np.clip((px * np.float32(1 / cs)).astype(np.intp) + _PAD, 0, grid.shape[1] - 1)
+    cv_ = np.clip((py * np.float32(1 / cs)).astype(np.intp) + _PAD, 0, grid.shape[0] - 1)
+    return grid[cv_, cu_].astype(np.intp)
+
+
 def _look(grid: np.ndarray, pts: np.ndarray, cs: float) -> np.ndarray:
     """The grid cell's entry (N,) intp for points (N, 2) (clipped to the grid)."""
     cu_ = np.clip((pts[:, 0] / cs).astype(np.intp) + _PAD, 0, grid.shape[1] - 1)
     cv_ = np.clip((pts[:, 1] / cs).astype(np.intp) + _PAD, 0, grid.shape[0] - 1)
     return grid[cv_, cu_].astype(np.intp)
+
+
+def _dist_to(px: np.ndarray, py: np.ndarray, centres: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """float32 distances (N,) from points (px, py) to centres[k] (centres (M, 2))."""
+    c = centres.astype(np.float32)
+    dx = px - c[k, 0]
+    dy = py - c[k, 1]
+    return np.sqrt(dx * dx + dy * dy)
 
 
 def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions = ExtractOptions()) -> GridObservation:
@@ -327,8 +342,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     oy = t * ny
     keep = (np.abs(ox) <= 0.5) & (np.abs(oy) <= 0.5) & (strength > thr) & (lam2 > -options.anisotropy * strength)
     u, v = u[keep], v[keep]
-    q = np.column_stack([u + ox[keep], v + oy[keep]]).astype(np.float64)
-    nrm = np.column_stack([nx[keep], ny[keep]]).astype(np.float64)
+    ox, oy, nx, ny = ox[keep], oy[keep], nx[keep], ny[keep]
     strength = strength[keep]
     stats: dict = {
         "ridge_candidates": int(len(pts)),
@@ -345,19 +359,27 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     gsh = (Hw // cell_s + 1, Ww // cell_s + 1)
     local = _cell_max(strength, u // cell_s, v // cell_s, gsh, 1)
     ok = strength >= options.min_relative_strength * local[v // cell_s, u // cell_s]
-    q, nrm, strength, u, v = q[ok], nrm[ok], strength[ok], u[ok], v[ok]
+    ox, oy, nx, ny, strength, u, v = ox[ok], oy[ok], nx[ok], ny[ok], strength[ok], u[ok], v[ok]
     okx = xs >= options.crossing_strength * local[xv // cell_s, xu // cell_s]
     xu, xv, xs = xu[okx], xv[okx], xs[okx]
 
     # --- 3. families from the predicted directions -------------------------------------------------------
-    q_full = q * scale
-    dirs, _ = model.lookup(q_full)
-    d_line = np.column_stack([-nrm[:, 1], nrm[:, 0]])
-    c1 = np.abs(np.einsum("ij,ij->i", d_line, dirs[:, 0]))
-    c2 = np.abs(np.einsum("ij,ij->i", d_line, dirs[:, 1]))
+    # (the model's coarse direction grid, looked up at the nearest cell; the line direction is (−ny, nx))
+    gh_d, gw_d = model.dir_cam.shape[:2]
+    cell_d = model.cell_px / scale
+    cd = np.clip(((u + ox) / cell_d + 0.5).astype(np.intp), 0, gw_d - 1)
+    rd = np.clip(((v + oy) / cell_d + 0.5).astype(np.intp), 0, gh_d - 1)
+    dflat = model.dir_cam.reshape(-1, 4).astype(np.float32)[rd * gw_d + cd]
+    c1 = np.abs(dflat[:, 1] * nx - dflat[:, 0] * ny)
+    c2 = np.abs(dflat[:, 3] * nx - dflat[:, 2] * ny)
     fam = np.where(c1 >= c2, 1, 2).astype(np.int8)
     ok = np.abs(c1 - c2) >= options.family_margin
-    q, nrm, strength, u, v, fam = q[ok], nrm[ok], strength[ok], u[ok], v[ok], fam[ok]
+    ox, oy, nx, ny, strength, u, v, fam = ox[ok], oy[ok], nx[ok], ny[ok], strength[ok], u[ok], v[ok], fam[ok]
+    qx32 = u.astype(np.float32) + ox  # float32 sample coordinates (working px), one array per coordinate for the hot loops
+    qy32 = v.astype(np.float32) + oy
+    nx32, ny32 = nx, ny
+    q = np.column_stack([qx32, qy32]).astype(np.float64)
+    nrm = np.column_stack([nx, ny]).astype(np.float64)
     P = len(q)
     stats["samples"] = int(P)
     t3 = time.perf_counter()
@@ -410,11 +432,11 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
 
     # samples near each candidate; a candidate is a crossing only where both families come close
     near = np.full(P, -1, np.intp)
-    dist = np.full(P, np.inf)
+    dist = np.full(P, np.inf, np.float32)
     if len(seeds) and P:
-        near = look(seed_grid, q)
+        near = _look_xy(seed_grid, qx32, qy32, cs)
         has = near >= 0
-        dist[has] = np.hypot(*(q[has] - seeds[near[has]]).T)
+        dist[has] = _dist_to(qx32[has], qy32[has], seeds, near[has])
         near[dist > r_att] = -1
         has = near >= 0
         ring = has & (dist > r0)
@@ -439,10 +461,6 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     ids[flat_all[fidx]] = fidx
     # each sample looks ahead along its own line: one and two steps along the dominant axis of its
     # tangent, the two pixels across that the line can reach (4 probes instead of the 12 of a 5x3 window)
-    qx32 = q[:, 0].astype(np.float32)
-    qy32 = q[:, 1].astype(np.float32)
-    nx32 = nrm[:, 0].astype(np.float32)
-    ny32 = nrm[:, 1].astype(np.float32)
     tx_ = -ny32[fidx]
     ty_ = nx32[fidx]
     xdom = np.abs(tx_) >= np.abs(ty_)
@@ -548,7 +566,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         pick = np.where((sa[:, 1] >= 0) & ((sa[:, 0] < 0) | (d_hi < d_lo)), sa[:, 1], sa[:, 0])
         okp = pick >= 0
         dd = np.full(len(sidx), np.inf)
-        dd[okp] = np.hypot(*(q[sidx[okp]] - seeds[pick[okp]]).T)
+        dd[okp] = _dist_to(qx32[sidx[okp]], qy32[sidx[okp]], seeds, pick[okp])
         arm_of[sidx[okp & (dd <= R)]] = pick[okp & (dd <= R)]
     valid = np.zeros(ns, bool)
     qj = np.full((ns, 2), np.nan)
@@ -643,9 +661,9 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     biased = np.concatenate(biased) if len(biased) > 1 else biased[0]
     if len(biased) and P:
         r_bias = r0 + s_w
-        kb = look(stamp(biased, r_bias), q)
+        kb = _look_xy(stamp(biased, r_bias), qx32, qy32, cs)
         nb = kb >= 0
-        nb[nb] = np.hypot(*(q[nb] - biased[kb[nb]]).T) <= r_bias
+        nb[nb] = _dist_to(qx32[nb], qy32[nb], biased, kb[nb]) <= r_bias
         seg_out[nb & (sample_junction < 0)] = -1
         stats["biased_samples"] = int(nb.sum())
     t4 = time.perf_counter()
