@@ -556,6 +556,20 @@ class TraceOptions:
         brightest inner point minus the darker of the two points one line width away; image 3×3
         box-filtered). The smoothed ridge of a line that an occluding edge half hides sits on the edge,
         off the line's light (decision 0050). 0 turns the test off; it needs the image.
+    cross_pieces: label unseeded pieces from the crossings at both ends (decision 0052): the crossing with
+        a labelled line m of the other family, triangulated on m's light sheet, must project within
+        cross_residual_px (projector px) of one line of the piece's family, inside the depth range, and both
+        ends must name the same line; cross_rounds rounds (labelled pieces become neighbours); pieces of at
+        least cross_min_samples samples; neighbours within cross_radius junction steps of the piece's end;
+        the samples within cross_trim_sigma·σ of the piece's ends are left out (pulled by the crossing).
+    cross_both_ends: off, one end suffices (measured: wrong indices on tabletop; do not turn off).
+    fill_gaps: fill a crossing's gap between two labelled pieces of one line with the same index that face
+        each other (samples moved onto the chord between the anchors, fill_anchor samples inside the ends).
+    cell_from_scale (off, decision 0053): link samples on cells of the extraction's sampling step
+        (obs.stats["scale"]) instead of camera pixels; raises coverage on the paper presets but lengthens
+        one mislabelled piece on paper-intermediate by two samples.
+    max_ridge_step: cut a trace where the image brightness at consecutive samples changes by more than
+        this share (an occluding edge where another surface's line continues this one); 0: off.
     """
 
     mix_sigma: float = 2.0
@@ -579,6 +593,8 @@ class TraceOptions:
     cross_residual_px: float = 1.0
     cross_trim_sigma: float = 1.0
     fill_gaps: bool = True
+    cell_from_scale: bool = False
+    max_ridge_step: float = 0.15
     fill_anchor: int = 3
 
 
@@ -595,9 +611,10 @@ class SampleLabels:
     stats: dict = field(default_factory=dict)
 
 
-def _traces(q: np.ndarray, fam: np.ndarray, r: np.ndarray, c: np.ndarray, shape: tuple[int, int], options: TraceOptions):
+def _traces(q: np.ndarray, fam: np.ndarray, r: np.ndarray, c: np.ndarray, shape: tuple[int, int], options: TraceOptions,
+            cell_px: int = 1, ridge: np.ndarray | None = None):
     """Cut the samples (n) of both families into trace pieces: link same-family samples in neighbouring
-    pixels (within link_px), take connected components, order each along its principal axis, and cut
+    cells (r, c: the samples' cells, cell_px camera px wide; within link_px·cell_px), take connected components, order each along its principal axis, and cut
     between consecutive samples where the line jumps sideways or turns (TraceOptions).
 
     Returns order (n,) (sample ids sorted by piece, then position along it), piece (n,) the piece id of
@@ -633,7 +650,8 @@ def _traces(q: np.ndarray, fam: np.ndarray, r: np.ndarray, c: np.ndarray, shape:
     a = np.concatenate(a_l)
     b = np.concatenate(b_l).astype(np.intp)
     dd = q[b] - q[a]
-    close = dd[:, 0] * dd[:, 0] + dd[:, 1] * dd[:, 1] <= options.link_px**2
+    link_px = options.link_px * cell_px
+    close = dd[:, 0] * dd[:, 0] + dd[:, 1] * dd[:, 1] <= link_px**2
     a, b = a[close], b[close]
     g = coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(n, n)).tocsr()
     ncomp, comp = connected_components(g, directed=False)
@@ -674,11 +692,14 @@ def _traces(q: np.ndarray, fam: np.ndarray, r: np.ndarray, c: np.ndarray, shape:
     turn = B[:, 0] * F[:, 0] + B[:, 1] * F[:, 1]
     cut = (
         (cs[1:] != cs[:-1])
-        | (dist > options.link_px)
+        | (dist > link_px)
         | (lateral > options.lateral_px)
         | (along < lateral)
         | (turn < np.cos(np.deg2rad(options.max_turn_deg)))
     )
+    if ridge is not None and options.max_ridge_step > 0:
+        rs = ridge[order]
+        cut |= np.abs(rs[1:] - rs[:-1]) > options.max_ridge_step * np.maximum(np.maximum(rs[1:], rs[:-1]), 1e-6)
     piece = np.concatenate([[0], np.cumsum(cut)])
     lt_all = np.maximum(np.hypot(tan[:, 0], tan[:, 1]), 1e-12)
     return order, piece, ts, tan / lt_all[:, None]
@@ -1019,6 +1040,26 @@ def _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, 
     return total
 
 
+def _ridge_brightness(image: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The 3×3 box-filtered image at samples q (N, 2), bilinear (N,) float32."""
+    img = np.asarray(image)
+    if img.ndim == 3:
+        from reconstruction.extraction import to_grey_float
+
+        img = to_grey_float(img)
+    if img.dtype not in (np.uint8, np.uint16, np.float32):
+        img = img.astype(np.float32)
+    img = cv2.blur(img, (3, 3))
+    m = len(q)
+    cols = 4096
+    rows = max(1, -(-m // cols))
+    pad = rows * cols - m
+    qf = np.nan_to_num(q.astype(np.float32))
+    mx = np.concatenate([qf[:, 0], np.zeros(pad, np.float32)]).reshape(rows, cols)
+    my = np.concatenate([qf[:, 1], np.zeros(pad, np.float32)]).reshape(rows, cols)
+    return cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel()[:m].astype(np.float32)
+
+
 def _nearest_seed(piece: np.ndarray, t: np.ndarray, has: np.ndarray) -> np.ndarray:
     """For positions in sorted trace order (piece non-decreasing, t the position along it), the position of
     the nearest seed (has) on the same piece, or −1."""
@@ -1076,17 +1117,20 @@ def label_samples(
     if not valid.any():
         return SampleLabels(index, q_out, seed_jid, stats)
     # Pixel grid (padded so that neighbour lookups never wrap).
+    # Cells of the extraction's own sampling step (obs.stats["scale"]: samples from a 2× reduced image lie
+    # about 2 px apart, and would never be neighbours on the camera's pixel grid).
+    cell = max(1, int(obs.stats.get("scale", 1))) if options.cell_from_scale else 1
     pad = 2
     c = np.zeros(P, np.intp)
     r = np.zeros(P, np.intp)
-    c[valid] = np.rint(q[valid, 0]).astype(np.intp)
-    r[valid] = np.rint(q[valid, 1]).astype(np.intp)
+    c[valid] = np.rint(q[valid, 0] / cell).astype(np.intp)
+    r[valid] = np.rint(q[valid, 1] / cell).astype(np.intp)
     c[valid] += pad - min(0, int(c[valid].min()))
     r[valid] += pad - min(0, int(r[valid].min()))
     H = int(r.max()) + pad + 1
     W = int(c.max()) + pad + 1
     # 1. The mixing zone: within mix_sigma·σ of a sample of the other family (a disk on the pixel grid).
-    rad = max(1, int(round(options.mix_sigma * sigma_px)))
+    rad = max(1, int(round(options.mix_sigma * sigma_px / cell)))
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rad + 1, 2 * rad + 1))
     near_other = np.zeros(P, bool)
     for f in (1, 2):  # one dilation per family
@@ -1130,9 +1174,13 @@ def label_samples(
     stats["mixing_zone"] = int((valid & near_other).sum()) - stats["snapped_to_junction_line"]
     stats["seeds"] = int((seed[kept] != UNLABELLED).sum())
     # 3. Trace pieces and the nearest seed along each.
+    ridge = None
+    if image is not None and options.max_ridge_step > 0:
+        ridge = _ridge_brightness(image, q)
     k_idx = np.flatnonzero(kept)
     if len(k_idx):
-        order, piece, ts, tangent = _traces(q[k_idx], fam[k_idx], r[k_idx], c[k_idx], (H, W), options)
+        order, piece, ts, tangent = _traces(q[k_idx], fam[k_idx], r[k_idx], c[k_idx], (H, W), options, cell,
+                                            None if ridge is None else ridge[k_idx])
         sid = k_idx[order]
         sv = seed[sid]
         has = sv != UNLABELLED
