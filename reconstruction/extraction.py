@@ -215,11 +215,12 @@ def _hessian_at(G: np.ndarray, u: np.ndarray, v: np.ndarray):
     lf = g[i - 1]
     dn = g[i + W]
     up = g[i - W]
+    dr_, dl_, ur_, ul_ = g[i + W + 1], g[i + W - 1], g[i - W + 1], g[i - W - 1]
     gx = 0.5 * (r - lf)
     gy = 0.5 * (dn - up)
     gxx = r - 2 * c + lf
     gyy = dn - 2 * c + up
-    gxy = 0.25 * ((g[i + W + 1] - g[i + W - 1]) - (g[i - W + 1] - g[i - W - 1]))
+    gxy = 0.25 * ((dr_ - dl_) - (ur_ - ul_))
     return gx, gy, gxx, gyy, gxy
 
 
@@ -326,6 +327,12 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     # crossing candidates: both curvatures clearly negative
     is_x = (lam2 < -options.anisotropy * strength) & (-lam2 > thr)
     xu, xv, xs = u[is_x], v[is_x], -lam2[is_x]
+    # line samples: strong and anisotropic (tested first: the eigenvector and Steger's offset below are
+    # computed only where these hold; decision 0057)
+    pre = (strength > thr) & (lam2 > -options.anisotropy * strength)
+    pre_i = np.nonzero(pre)[0]
+    u, v = u[pre_i], v[pre_i]
+    gx, gy, gxx, gyy, gxy, lam1, strength = gx[pre_i], gy[pre_i], gxx[pre_i], gyy[pre_i], gxy[pre_i], lam1[pre_i], strength[pre_i]
     # eigenvector of lam1: two algebraically equivalent forms, take the better-conditioned one
     ax, ay = gxy, lam1 - gxx
     bx, by = lam1 - gyy, gxy
@@ -340,7 +347,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         t = -(gx * nx + gy * ny) / lam1
     ox = t * nx
     oy = t * ny
-    keep = (np.abs(ox) <= 0.5) & (np.abs(oy) <= 0.5) & (strength > thr) & (lam2 > -options.anisotropy * strength)
+    keep = (np.abs(ox) <= 0.5) & (np.abs(oy) <= 0.5)
     u, v = u[keep], v[keep]
     ox, oy, nx, ny = ox[keep], oy[keep], nx[keep], ny[keep]
     strength = strength[keep]
