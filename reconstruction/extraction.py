@@ -430,7 +430,9 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         xq = np.column_stack([xu, xv]).astype(np.float64)
         lab_x = look(seed_grid, xq)
         okx = lab_x >= 0
-        okx[okx] = np.hypot(*(xq[okx] - seeds[lab_x[okx]]).T) <= max(r0, 1.5)
+        # over the core and one smoothing scale more: on wide flat-topped lines the weaker curvature
+        # peaks near the corners of the crossing, the blob as a whole is centred (decision 0058)
+        okx[okx] = np.hypot(*(xq[okx] - seeds[lab_x[okx]]).T) <= max(r0 + s_w, 1.5)
         wsum = np.bincount(lab_x[okx], weights=xs[okx], minlength=len(seeds))
         seeds = np.column_stack([
             np.bincount(lab_x[okx], weights=xs[okx] * xu[okx], minlength=len(seeds)),
