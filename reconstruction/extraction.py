@@ -55,6 +55,8 @@ class ExtractOptions:
         (camera px, at least a third of the junction core).
     max_arm_turn_deg: a junction's fitted line may differ from its samples' own directions by this much
         on average (more: the line jumps sideways at the crossing, a depth edge).
+    free_end_trim_sigma: samples within this many smoothing scales of a segment end that reaches no
+        crossing are left out of their segment (the cut line's ridge is biased there); 0: keep them.
     downsample_sigma_px: smoothing scales at or above this are computed on a half-resolution image
         (wide lines; the samples are still about two camera pixels apart).
     """
@@ -69,6 +71,7 @@ class ExtractOptions:
     max_junction_offset_px: float = 1.5
     downsample_sigma_px: float = 2.6
     max_arm_turn_deg: float = 6.0
+    free_end_trim_sigma: float = 2.0
     debug: bool = False
 
 
@@ -666,6 +669,16 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     # crossing (T- and L-shapes: the pattern's rim, occlusions) the other line's light biases the ridge,
     # so samples there are left out of their segment
     seg_out = np.where(sample_junction >= 0, -1, seg)
+    if S and options.free_end_trim_sigma > 0:
+        # a line cut by a silhouette or a shadow edge is half a bar there: its ridge bends away from the true
+        # centre within about one smoothing scale of the cut; samples that close to a free end (one that
+        # reaches no crossing) are left out of their segment (decision 0059)
+        d_trim = options.free_end_trim_sigma * s_w
+        free_lo = seg_seed[sg, 0] < 0
+        free_hi = seg_seed[sg, 1] < 0
+        near_end = (free_lo & (sproj - smin[sg] < d_trim)) | (free_hi & (smax[sg] - sproj < d_trim))
+        seg_out[sidx[near_end & (sample_junction[sidx] < 0)]] = -1
+        stats["end_trimmed_samples"] = int(near_end.sum())
     biased = [seeds[~valid]] + t_points
     biased = np.concatenate(biased) if len(biased) > 1 else biased[0]
     if len(biased) and P:
