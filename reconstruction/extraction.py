@@ -1,7 +1,7 @@
 """Grid extraction: sub-pixel line centres, the two line families, junctions and their connectivity.
 
 One camera image in, a `GridObservation` out (camera pixels, (u, v), pixel (0, 0) = centre of the
-top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055, 0056):
+top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055–0059):
 
 1. Smoothing with a Gaussian of σ = 0.4 × the line width the calibration predicts (one separable float32
    filter over the image; lines wider than ~6 px are processed at half resolution after `cv2.pyrDown`).
@@ -21,7 +21,12 @@ top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055,
 5. Segments: samples outside the junction cores are linked to neighbours within 2 px that lie on the same
    line (same family, parallel normals, small offset across the line) and the links' connected components
    are the segments; kinks and gaps (depth edges, shadows) break them. A segment whose two ends reach two
-   different junctions and whose samples lie on the chord between them is an edge of the graph.
+   different junctions and whose samples lie on the chord between them is an edge of the graph. Samples
+   within two smoothing scales of an end that reaches no crossing (a line cut by a silhouette or shadow)
+   leave their segment: the cut bends the ridge there (decision 0059).
+
+Speed (decision 0057): per-sample work is NumPy on flat float32 arrays, one per coordinate, where it is
+hot; linking probes 4 pixels along each sample's own tangent; the lookups go through coarse grids.
 """
 
 from __future__ import annotations
@@ -460,7 +465,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         seeds, seed_score = seeds[crossing], seed_score[crossing]
         near = remap_seed[near]
         dist[near < 0] = np.inf
-        seed_grid = stamp(seeds, r_att + 1.5)
+        seed_grid = remap_seed[seed_grid]  # (the non-crossings' cells now hold −1)
     ns = len(seeds)
     core = dist <= r0
 
@@ -524,7 +529,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     # --- 5b. segment ends: the crossing each end reaches ---------------------------------------------------
     seg_seed = np.full((S, 2), -1, np.int64)
     t_points: list[np.ndarray] = []
-    sproj = np.einsum("ij,ij->i", q[sidx] - seg_cen[sg], seg_dir[sg])
+    sproj = (q[sidx, 0] - seg_cen[sg, 0]) * seg_dir[sg, 0] + (q[sidx, 1] - seg_cen[sg, 1]) * seg_dir[sg, 1]
     smin = np.full(S, np.inf)
     smax = np.full(S, -np.inf)
     if S:
@@ -547,10 +552,11 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
             iu = np.rint(pu).astype(np.intp)
             iv = np.rint(pv).astype(np.intp)
             inside = (iu >= 0) & (iu < Ww) & (iv >= 0) & (iv < Hw)
-            pp = np.column_stack([pu.ravel(), pv.ravel()])
-            hit = look(seed_grid, pp)
+            pu32 = pu.ravel().astype(np.float32)
+            pv32 = pv.ravel().astype(np.float32)
+            hit = _look_xy(seed_grid, pu32, pv32, cs)
             okh = hit >= 0
-            okh[okh] = np.hypot(*(pp[okh] - seeds[hit[okh]]).T) <= r_side
+            okh[okh] = _dist_to(pu32[okh], pv32[okh], seeds, hit[okh]) <= r_side
             hit = np.where(okh, hit, -1).reshape(iu.shape)
             first = np.argmax(hit >= 0, axis=1)
             kk = hit[np.arange(S), first]
@@ -701,7 +707,8 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     clen = np.hypot(chord[:, 0], chord[:, 1])
     cn = np.column_stack([-chord[:, 1], chord[:, 0]]) / np.where(clen > 0, clen, 1)[:, None]
     sh = has_seg & cand[np.maximum(seg, 0)]
-    dist_ch = np.abs(np.einsum("ij,ij->i", q[sh] - qa_[seg[sh]], cn[seg[sh]]))
+    seg_sh = seg[sh]
+    dist_ch = np.abs((qx32[sh] - qa_[seg_sh, 0]) * cn[seg_sh, 0] + (qy32[sh] - qa_[seg_sh, 1]) * cn[seg_sh, 1])
     n_sh = np.bincount(seg[sh], minlength=S)
     rms_ch = np.sqrt(np.bincount(seg[sh], weights=dist_ch**2, minlength=S) / np.maximum(n_sh, 1))
     max_ch = np.zeros(S)
