@@ -587,7 +587,7 @@ class TraceOptions:
     max_profile_drop: float = 0.15
     cross_pieces: bool = True
     cross_both_ends: bool = True
-    cross_rounds: int = 6
+    cross_rounds: int = 3
     cross_min_samples: int = 4
     cross_radius: float = 0.6
     cross_residual_px: float = 1.0
@@ -921,7 +921,7 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
             cand = np.flatnonzero(lab_pos & (fam[sid] == 3 - f))
             if len(sel) == 0 or len(cand) == 0:
                 continue
-            d, k = cKDTree(q[sid[cand]]).query(e[sel], distance_upper_bound=radius_px)
+            d, k = cKDTree(q[sid[cand]], balanced_tree=False, compact_nodes=False).query(e[sel], distance_upper_bound=radius_px)
             hit = np.isfinite(d)
             sel, o = sel[hit], cand[k[hit]]
             s_q, ts = q[sid[o]], tangent[o]
