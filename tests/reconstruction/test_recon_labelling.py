@@ -316,3 +316,26 @@ def test_relative_labels_recover_a_grid_up_to_one_offset_per_component_and_drop_
         # one offset for the whole component: the lowest-numbered junction is the root (label 0, 0)
         assert (off == off[0]).all(), np.unique(off, axis=0)
         assert (rel[m.min()] == 0).all()
+
+
+def test_a_trace_is_cut_where_the_ridge_brightness_jumps():
+    # One straight i-line, seeded at (100, 100); from x = 250 on it is 40 % darker (another surface's line
+    # continuing it across an occluding edge). With the image, the dark part is cut off; without the
+    # test (max_ridge_step = 0), the seed's index runs through to the end.
+    d = np.array([1.0, 0.0])
+    a, fa = _line_samples((100, 100), d, 300, 1, start=3.0)
+    img = np.zeros((240, 480), np.float32)
+    img[99:102, 100:250] = 200.0
+    img[99:102, 250:410] = 120.0
+    jd = np.zeros((1, 2, 2))
+    jd[0, 0] = d
+    jd[0, 1] = (0.0, 1.0)
+    obs = _obs(np.array([[100.0, 100.0]]), np.zeros((0, 2)), np.zeros((0, 2)), q=a, family=fa, junction_dir=jd)
+    opts = TraceOptions(max_profile_drop=0.0)
+    cut = label_samples(obs, np.array([[4, -7]]), sigma_px=1.0, seed_radius_px=8.0, options=opts, image=img, line_width_px=3.0)
+    x = a[:, 0]
+    assert np.all(cut.index[x < 245] == 4)
+    assert np.all(np.isnan(cut.index[x > 255]))
+    whole = label_samples(obs, np.array([[4, -7]]), sigma_px=1.0, seed_radius_px=8.0, image=img, line_width_px=3.0,
+                          options=TraceOptions(max_profile_drop=0.0, max_ridge_step=0.0))
+    assert np.all(whole.index == 4)
