@@ -76,6 +76,12 @@ class SeqDone:
     device_time_us: int | None
 
 
+def _prefixed(what: str, e: BaseException) -> str:
+    """`what: e`, without doubling a prefix pyserial already wrote ("write failed: write failed: …")."""
+    text = str(e)
+    return text if text.startswith(what) else f"{what}: {text}"
+
+
 class _LinkDown(DeviceError):
     """The transport raised (port vanished, I/O error). Handled inside the driver by reconnecting; should it
     escape (while following a sequence, say), it is a DeviceError like any other."""
@@ -544,7 +550,7 @@ class SerialProjector:
         try:
             self._t.write(data)
         except (OSError, ValueError) as e:  # SerialException is an OSError; ValueError: closed fd
-            raise _LinkDown(f"write failed: {e}") from e
+            raise _LinkDown(_prefixed("write failed", e)) from e
 
     def _flush_input(self) -> None:
         try:
@@ -577,7 +583,7 @@ class SerialProjector:
                     n = self._t.in_waiting
                     data = self._t.read(n) if n else b""
                 except (OSError, ValueError, TypeError) as e:
-                    raise _LinkDown(f"read failed: {e}") from e
+                    raise _LinkDown(_prefixed("read failed", e)) from e
                 if data:
                     now = self.clock()
                     for line, _overflow in self._splitter.feed(data):
