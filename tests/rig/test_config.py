@@ -71,3 +71,18 @@ def test_config_is_frozen():
     cfg = RigConfig()
     with pytest.raises(Exception):
         cfg.camera.fps = 10  # type: ignore[misc]
+
+
+def test_rig_init_and_config_show(tmp_path, capsys):
+    from rig.cli import main
+
+    path = tmp_path / "rig.toml"
+    assert main(["init", str(path)]) == 0
+    assert load_config(path) == RigConfig(source=path.resolve())
+    assert main(["init", str(path)]) == 2, "an existing file is not overwritten without --force"
+    assert "pass --force" in capsys.readouterr().err
+    capsys.readouterr()
+    assert main(["config", "show", "--config", str(path)]) == 0
+    shown = capsys.readouterr().out
+    assert f"from {path.resolve()}" in shown
+    assert config_from_dict(tomllib.loads(shown.split("\n", 1)[1])) == RigConfig()
