@@ -900,7 +900,6 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
     starts = np.searchsorted(piece, np.arange(n_pieces + 1))
     first, last = starts[:-1], starts[1:] - 1
     count = last - first + 1
-    f_piece = fam[sid[first]]
     total = 0
     for _ in range(options.cross_rounds):
         lab_pos = np.isfinite(index[sid])

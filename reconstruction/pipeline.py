@@ -16,7 +16,6 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from calibration.errors import ReconstructionError
 from calibration.models import ProCam

@@ -14,7 +14,6 @@ each pose the session says how far the coverage got and where to put the board n
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence

@@ -35,12 +35,6 @@ def _register() -> None:
 _register()
 
 
-def fail(message: str, code: int = 1) -> None:
-    """Print one error line to stderr and exit with `code`."""
-    typer.echo(f"rig: error: {message}", err=True)
-    raise typer.Exit(code)
-
-
 def main(argv: list[str] | None = None) -> int:
     """Console-script entry point: runs the app, mapping RigError to one line and its exit code."""
     try:
