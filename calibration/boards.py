@@ -42,11 +42,16 @@ class Chessboard:
     @property
     def object_points_mm(self) -> np.ndarray:
         """(cols*rows, 3) corner positions, row-major (corner id = row * cols + col), board frame, mm."""
-        col, row = np.meshgrid(np.arange(self.cols), np.arange(self.rows))
-        return np.column_stack([col.ravel(), row.ravel(), np.zeros(col.size)]) * self.square_mm
+        return _corner_grid_mm(self.cols, self.rows, self.square_mm)
 
     def describe(self) -> dict:
         return {"kind": "chessboard", "cols": self.cols, "rows": self.rows, "square_mm": self.square_mm}
+
+
+def _corner_grid_mm(cols: int, rows: int, square_mm: float) -> np.ndarray:
+    """(cols*rows, 3) inner-corner positions, row-major (id = row * cols + col), board frame (z = 0), mm."""
+    col, row = np.meshgrid(np.arange(cols), np.arange(rows))
+    return np.column_stack([col.ravel(), row.ravel(), np.zeros(col.size)]) * square_mm
 
 
 @dataclass(frozen=True)
@@ -89,8 +94,7 @@ class CharucoBoard:
     @property
     def object_points_mm(self) -> np.ndarray:
         """(cols*rows, 3) ChArUco corner positions (corner id order), board frame, mm."""
-        col, row = np.meshgrid(np.arange(self.cols), np.arange(self.rows))
-        return np.column_stack([col.ravel(), row.ravel(), np.zeros(col.size)]) * self.square_mm
+        return _corner_grid_mm(self.cols, self.rows, self.square_mm)
 
     def opencv_board(self) -> "cv2.aruco.CharucoBoard":
         d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))

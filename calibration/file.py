@@ -170,15 +170,20 @@ def parse_calibration(data: Any, *, source: str = "calibration") -> CalibrationF
         raise CalibrationFileError(f"{source}: {_first_error(e)}") from e
 
 
+def read_text(path: Path, *, error: type[Exception], missing: str) -> str:
+    """A UTF-8 file's text; a missing or unreadable file is one `error` naming the path (`missing`: the hint)."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError as e:
+        raise error(f"{path}: {missing}") from e
+    except OSError as e:
+        raise error(f"{path}: cannot read: {e.strerror}") from e
+
+
 def load_calibration(path: str | os.PathLike) -> CalibrationFile:
     """Read and validate a calibration file; every failure is one CalibrationFileError naming the problem."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError as e:
-        raise CalibrationFileError(f"{path}: no such calibration file (make one with `rig calibrate`)") from e
-    except OSError as e:
-        raise CalibrationFileError(f"{path}: cannot read: {e.strerror}") from e
+    text = read_text(path, error=CalibrationFileError, missing="no such calibration file (make one with `rig calibrate`)")
     try:
         data = json.loads(text)
     except json.JSONDecodeError as e:

@@ -13,6 +13,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from calibration.errors import ConfigError
+from calibration.file import read_text
 from reconstruction.patterns import GridPattern
 
 _FROZEN = ConfigDict(extra="forbid", frozen=True)
@@ -123,12 +124,7 @@ def load_config(path: str | os.PathLike | None) -> RigConfig:
     if path is None:
         return RigConfig()
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError as e:
-        raise ConfigError(f"{path}: no such configuration file (write one with `rig init`)") from e
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read: {e.strerror}") from e
+    text = read_text(path, error=ConfigError, missing="no such configuration file (write one with `rig init`)")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
