@@ -36,7 +36,7 @@ class ScanRequest:
 @dataclass
 class ScanSummary:
     out: Path
-    frames_requested: int
+    scans_requested: int
     frames_captured: int = 0
     scans_done: int = 0
     points_total: int = 0
@@ -132,7 +132,7 @@ def run_scan(
     from rig.recording import open_recording
     from rig.registry import open_rig
 
-    summary = ScanSummary(out=request.out, frames_requested=request.frames, record=request.record)
+    summary = ScanSummary(out=request.out, scans_requested=request.frames, record=request.record)
     with contextlib.ExitStack() as stack:
         capture = None
         transcript = None

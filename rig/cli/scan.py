@@ -78,7 +78,7 @@ def _report(summary, out: Path) -> None:
     s = summary
     state = "interrupted: " if s.interrupted else ""
     typer.echo(
-        f"{state}{s.scans_done} of {s.frames_requested} scan(s) done, {s.frames_captured} frame(s) captured; "
+        f"{state}{s.scans_done} of {s.scans_requested} scan(s) done, {s.frames_captured} frame(s) captured; "
         f"calibration: {s.calibration_source}"
     )
     if s.reconstructed:
