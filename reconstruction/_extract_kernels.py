@@ -21,6 +21,63 @@ _F32_HALF = np.float32(0.5)
 _F32_QUARTER = np.float32(0.25)
 _F32_TWO = np.float32(2.0)
 _F32_M4 = np.float32(-4.0)
+_F32_ONE = np.float32(1.0)
+_F32_ZERO = np.float32(0.0)
+
+
+_STEGER_BLOCK = 512  # candidates per block of the ridge walk's vectorised Hessian pass
+
+
+@njit(error_model="numpy")
+def steger_block(nb, V, thr, neg_aniso, neg_cross, O):
+    """The Hessian, its eigenvalues, the normal and Steger's offset of `nb` candidates, branch-free so that
+    LLVM vectorises the loop (two arrays only: with more, its runtime alias checks make it give up).
+
+    V: (9, B) float32 the 3×3 neighbourhood per candidate (centre, right, left, down, up, down-right,
+    down-left, up-right, up-left). O: (8, B) float32 out: dx, dy, ex, ey, strength = −λ1, −λ2, crossing
+    flag, line-sample flag (1.0 / 0.0). Same operations and float32 widths as the scalar walk before
+    (np.sqrt of a float32 is the correctly rounded float32 square root)."""
+    for j in range(nb):
+        c0 = V[0, j]
+        r_ = V[1, j]
+        lf = V[2, j]
+        dn = V[3, j]
+        up = V[4, j]
+        gx = _F32_HALF * (r_ - lf)
+        gy = _F32_HALF * (dn - up)
+        gxx = r_ - _F32_TWO * c0 + lf
+        gyy = dn - _F32_TWO * c0 + up
+        gxy = _F32_QUARTER * ((V[5, j] - V[6, j]) - (V[7, j] - V[8, j]))
+        half_tr = _F32_HALF * (gxx + gyy)
+        h = _F32_HALF * (gxx - gyy)
+        disc = np.sqrt(h * h + gxy * gxy)
+        lam1 = half_tr - disc
+        lam2 = half_tr + disc
+        strength = -lam1
+        lim = neg_aniso * strength
+        ax = gxy
+        ay = lam1 - gxx
+        bx = lam1 - gyy
+        by = gxy
+        use_b = (bx * bx + by * by) > (ax * ax + ay * ay)
+        ex = bx if use_b else ax
+        ey = by if use_b else ay
+        nn = np.sqrt(ex * ex + ey * ey)
+        nn = _F32_ONE if nn == 0 else nn
+        ex = ex / nn
+        ey = ey / nn
+        t = -(gx * ex + gy * ey) / lam1
+        dx = t * ex
+        dy = t * ey
+        O[0, j] = dx
+        O[1, j] = dy
+        O[2, j] = ex
+        O[3, j] = ey
+        O[4, j] = strength
+        O[5, j] = -lam2
+        O[6, j] = _F32_ONE if ((lam2 < neg_cross * strength) & (-lam2 > thr)) else _F32_ZERO
+        keep = (strength > thr) & (lam2 > lim) & (abs(dx) <= _F32_HALF) & (abs(dy) <= _F32_HALF)
+        O[7, j] = _F32_ONE if keep else _F32_ZERO
 
 
 @njit(error_model="numpy")
@@ -37,10 +94,15 @@ def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross):
     Returns n_candidates, the line samples in row-major order (u, v int64; ox, oy offset to the ridge,
     nx, ny unit normal, strength: float32) — kept when the ridge passes through the pixel's square — and
     the crossing candidates (xu, xv int64, xs = −λ2 float32), row-major too.
+
+    How (decision 0069): per row, the Laplacian test into a byte per pixel (a vectorised loop), then the
+    candidates of each 8-byte word with a flag, branch-free (every pixel of the word written, the count
+    advanced by its flag); then blocks of candidates: their 3×3 neighbourhoods gathered, `steger_block`
+    (vectorised), and the kept ones compacted branch-free (written at the next free place, the place
+    advancing only where kept).
     """
     H, W = G.shape
-    cand = np.empty(H * W, np.int32)
-    row = np.empty(W, np.float32)
+    cand = np.empty(H * W + 8, np.int32)
     flag = np.zeros((W + 7) // 8 * 8, np.uint8)
     flag8 = flag.view(np.uint64)
     n = 0
@@ -48,78 +110,60 @@ def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross):
         a = G[r - 1]
         b = G[r]
         d = G[r + 1]
-        for c in range(1, W - 1):  # branch-free passes (vectorised by LLVM), then the test 8 pixels at a time
-            row[c] = (((a[c] + b[c - 1]) + _F32_M4 * b[c]) + b[c + 1]) + d[c]
-        for c in range(1, W - 1):
-            flag[c] = row[c] < thr_lap
+        for c in range(1, W - 1):  # flag[0] and flag[W - 1 ...] stay 0: border pixels are never candidates
+            flag[c] = ((((a[c] + b[c - 1]) + _F32_M4 * b[c]) + b[c + 1]) + d[c]) < thr_lap
+        base = r * W
         for w in range(len(flag8)):
             if flag8[w] != 0:
                 for c in range(8 * w, 8 * w + 8):
-                    if flag[c]:
-                        cand[n] = r * W + c
-                        n += 1
-    u = np.empty(n + 1, np.int64)  # (+1: a rejected last candidate is written too)
-    v = np.empty(n + 1, np.int64)
-    ox = np.empty(n + 1, np.float32)
-    oy = np.empty(n + 1, np.float32)
-    nx = np.empty(n + 1, np.float32)
-    ny = np.empty(n + 1, np.float32)
-    st = np.empty(n + 1, np.float32)
-    xu = np.empty(n + 1, np.int64)
-    xv = np.empty(n + 1, np.int64)
-    xs = np.empty(n + 1, np.float32)
+                    cand[n] = base + c
+                    n += flag[c]
+    u = np.empty(n, np.int64)
+    v = np.empty(n, np.int64)
+    ox = np.empty(n, np.float32)
+    oy = np.empty(n, np.float32)
+    nx = np.empty(n, np.float32)
+    ny = np.empty(n, np.float32)
+    st = np.empty(n, np.float32)
+    xu = np.empty(n, np.int64)
+    xv = np.empty(n, np.int64)
+    xs = np.empty(n, np.float32)
+    B = _STEGER_BLOCK
+    V = np.empty((9, B), np.float32)
+    O = np.empty((8, B), np.float32)
+    g = G.ravel()
     m = 0
     mx = 0
-    g = G.ravel()
-    for k in range(n):
-        i = cand[k]
-        c0 = g[i]
-        r_ = g[i + 1]
-        lf = g[i - 1]
-        dn = g[i + W]
-        up = g[i - W]
-        gx = _F32_HALF * (r_ - lf)
-        gy = _F32_HALF * (dn - up)
-        gxx = r_ - _F32_TWO * c0 + lf
-        gyy = dn - _F32_TWO * c0 + up
-        gxy = _F32_QUARTER * ((g[i + W + 1] - g[i + W - 1]) - (g[i - W + 1] - g[i - W - 1]))
-        half_tr = _F32_HALF * (gxx + gyy)
-        h = _F32_HALF * (gxx - gyy)
-        disc = np.float32(math.sqrt(h * h + gxy * gxy))
-        lam1 = half_tr - disc
-        lam2 = half_tr + disc
-        strength = -lam1
-        lim = neg_aniso * strength
-        # branch-free below (the tests are unpredictable): every candidate is written at the next free
-        # place, the place advances only where it is kept
-        is_x = (lam2 < neg_cross * strength) & (-lam2 > thr)
-        vv = np.int64(i) // W
-        xu[mx] = i - vv * W
-        xv[mx] = vv
-        xs[mx] = -lam2
-        mx += is_x
-        ax = gxy
-        ay = lam1 - gxx
-        bx = lam1 - gyy
-        by = gxy
-        use_b = (bx * bx + by * by) > (ax * ax + ay * ay)
-        ex = bx if use_b else ax
-        ey = by if use_b else ay
-        nn = np.float32(math.sqrt(ex * ex + ey * ey))
-        nn = np.float32(1.0) if nn == 0 else nn
-        ex = ex / nn
-        ey = ey / nn
-        t = -(gx * ex + gy * ey) / lam1
-        dx = t * ex
-        dy = t * ey
-        u[m] = i - vv * W
-        v[m] = vv
-        ox[m] = dx
-        oy[m] = dy
-        nx[m] = ex
-        ny[m] = ey
-        st[m] = strength
-        m += (strength > thr) & (lam2 > lim) & (abs(dx) <= _F32_HALF) & (abs(dy) <= _F32_HALF)
+    for k0 in range(0, n, B):
+        nb = min(B, n - k0)
+        for j in range(nb):
+            i = cand[k0 + j]
+            V[0, j] = g[i]
+            V[1, j] = g[i + 1]
+            V[2, j] = g[i - 1]
+            V[3, j] = g[i + W]
+            V[4, j] = g[i - W]
+            V[5, j] = g[i + W + 1]
+            V[6, j] = g[i + W - 1]
+            V[7, j] = g[i - W + 1]
+            V[8, j] = g[i - W - 1]
+        steger_block(nb, V, thr, neg_aniso, neg_cross, O)
+        for j in range(nb):  # n outputs at most, so the next free place is always inside the arrays
+            i = cand[k0 + j]
+            vv = i // W
+            uu = i - vv * W
+            xu[mx] = uu
+            xv[mx] = vv
+            xs[mx] = O[5, j]
+            mx += O[6, j] != 0
+            u[m] = uu
+            v[m] = vv
+            ox[m] = O[0, j]
+            oy[m] = O[1, j]
+            nx[m] = O[2, j]
+            ny[m] = O[3, j]
+            st[m] = O[4, j]
+            m += O[7, j] != 0
     # views, not copies: albedo_and_families copies what it keeps
     return n, u[:m], v[:m], ox[:m], oy[:m], nx[:m], ny[:m], st[:m], xu[:mx], xv[:mx], xs[:mx]
 
