@@ -21,14 +21,78 @@ from reconstruction.geometry import _k_triangulate_rays
 def mixing_zone(r, c, fam, valid, H, W, dr, dc):
     """near_other (P,) bool: a valid sample of family f has a valid sample of family 3 − f in a pixel at one
     of the offsets (dr, dc) (the structuring element of the former cv2.dilate) from its own pixel.
-    r, c (P,) pixel row/column (padded grid H×W)."""
+    r, c (P,) pixel row/column (padded grid H×W).
+
+    Each family's pixels are bits of 64-bit words along the rows; the element's offsets in one row are a
+    run of columns (an ellipse is convex), so a sample tests one mask per row of the element instead of
+    one pixel per offset. An element with a gap in a row is looked at offset by offset."""
     P = r.shape[0]
+    out = np.zeros(P, np.bool_)
+    K = dr.shape[0]
+    if K == 0:
+        return out
+    # the element's column run in each of its rows
+    r_lo = dr.min()
+    nr = dr.max() - r_lo + 1
+    c_lo = np.full(nr, 1 << 30, np.intp)
+    c_hi = np.full(nr, -(1 << 30), np.intp)
+    cnt = np.zeros(nr, np.intp)
+    for k in range(K):
+        j = dr[k] - r_lo
+        c_lo[j] = min(c_lo[j], dc[k])
+        c_hi[j] = max(c_hi[j], dc[k])
+        cnt[j] += 1
+    runs = True
+    for j in range(nr):
+        if cnt[j] > 0 and cnt[j] != c_hi[j] - c_lo[j] + 1:
+            runs = False  # duplicates or a gap: offset by offset
+    if not runs:
+        return mixing_zone_offsets(r, c, fam, valid, H, W, dr, dc)
+    # Bit rows padded by the element's reach (rows) and one word (64 columns) on each side, so that no
+    # test needs a bounds check; a run is read as one 64-bit window from two neighbouring words.
+    width = 0
+    for j in range(nr):
+        width = max(width, c_hi[j] - c_lo[j] + 1)
+    if width > 63 or c_lo.min() < -64 or c_hi.max() > 64:
+        return mixing_zone_offsets(r, c, fam, valid, H, W, dr, dc)
+    HP = H + nr
+    WW = ((W + 128) >> 6) + 2
+    bits = np.zeros(2 * HP * WW, np.uint64)
+    one = np.uint64(1)
+    for i in range(P):
+        if valid[i]:
+            cc = c[i] + 64
+            bits[((fam[i] - 1) * HP + r[i] - r_lo) * WW + (cc >> 6)] |= one << np.uint64(cc & 63)
+    mask = np.zeros(nr, np.uint64)
+    for j in range(nr):
+        if cnt[j] > 0:
+            mask[j] = (one << np.uint64(c_hi[j] - c_lo[j] + 1)) - one
+    for i in range(P):
+        if not valid[i]:
+            continue
+        base = ((2 - fam[i]) * HP + r[i]) * WW  # the other family's bits, element row 0
+        ci = c[i] + 64
+        acc = np.uint64(0)
+        for j in range(nr):
+            a = ci + c_lo[j]
+            k = base + j * WW + (a >> 6)
+            sh = np.uint64(a & 63)
+            win = (bits[k] >> sh) | ((bits[k + 1] << one) << (np.uint64(63) - sh))
+            acc |= win & mask[j]
+        out[i] = acc != 0
+    return out
+
+
+@njit
+def mixing_zone_offsets(r, c, fam, valid, H, W, dr, dc):
+    """`mixing_zone` offset by offset on a byte grid (any element)."""
+    P = r.shape[0]
+    out = np.zeros(P, np.bool_)
+    K = dr.shape[0]
     grid = np.zeros(H * W, np.uint8)
     for i in range(P):
         if valid[i]:
             grid[r[i] * W + c[i]] |= np.uint8(fam[i])  # bit 1: family 1, bit 2: family 2
-    out = np.zeros(P, np.bool_)
-    K = dr.shape[0]
     for i in range(P):
         if not valid[i]:
             continue
