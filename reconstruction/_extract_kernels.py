@@ -164,108 +164,85 @@ def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross):
             ny[m] = O[3, j]
             st[m] = O[4, j]
             m += O[7, j] != 0
-    # views, not copies: albedo_and_families copies what it keeps
+    # views, not copies: albedo_and_families copies what it keeps (the next free place never passes the
+    # element being read)
     return n, u[:m], v[:m], ox[:m], oy[:m], nx[:m], ny[:m], st[:m], xu[:mx], xv[:mx], xs[:mx]
 
 
 @njit
-def cell_max(values, cu, cv, gh, gw, spread):
-    """(gh, gw) float32: the maximum of `values` per cell (cells given per value), then over the
-    (2·spread+1)² cells around (in the grid only), as `np.maximum.at` on zeros followed by `cv2.dilate`."""
-    m = np.zeros((gh, gw), np.float32)
-    for k in range(len(values)):
-        if values[k] > m[cv[k], cu[k]]:
-            m[cv[k], cu[k]] = values[k]
-    if spread == 0:
-        return m
-    out = np.zeros((gh, gw), np.float32)
-    for r in range(gh):
-        for c in range(gw):
-            best = m[r, c]
-            for rr in range(max(r - spread, 0), min(r + spread + 1, gh)):
-                for cc in range(max(c - spread, 0), min(c + spread + 1, gw)):
-                    if m[rr, cc] > best:
-                        best = m[rr, cc]
-            out[r, c] = best
-    return out
-
-
-@njit
 def albedo_and_families(u, v, ox, oy, nx, ny, st, xu, xv, xs, Hw, Ww, min_rel, cross_rel, dir4, gh_d, gw_d, cell_d, margin):
-    """The uneven-albedo test (a fraction of the strongest ridge in the 3×3 cells of 16 px around) on line
-    samples and crossing candidates, then the family of each line sample from the model's direction grid
-    `dir4` ((gh_d·gw_d, 4) float32: i-line (dx, dy), j-line (dx, dy); nearest cell of `cell_d` px).
+    """The uneven-albedo test (a fraction of the strongest ridge in the 3×3 cells of 16 px around: the
+    per-cell maximum, then its 3×3 dilation within the grid) on line samples and crossing candidates,
+    then the family of each line sample from the model's direction grid `dir4` ((gh_d·gw_d, 4) float32:
+    i-line (dx, dy), j-line (dx, dy); nearest cell of `cell_d` px).
 
     min_rel, cross_rel, margin: float32. Returns the kept samples (u, v, ox, oy, nx, ny, strength, fam int8,
-    qx, qy float32 = u + ox, v + oy) and the kept crossing candidates (xu, xv, xs)."""
+    qx, qy float32 = u + ox, v + oy) and the kept crossing candidates (xu, xv, xs), in input order, as
+    views of arrays of the input's length (every sample is written at the next free place, the place
+    advances only where it is kept: branch-free)."""
     cell_s = 16
     gh = Hw // cell_s + 1
     gw = Ww // cell_s + 1
     n = len(u)
-    cu = np.empty(n, np.int64)
-    cv = np.empty(n, np.int64)
+    m0 = np.zeros((gh, gw), np.float32)
     for k in range(n):
-        cu[k] = u[k] // cell_s
-        cv[k] = v[k] // cell_s
-    local = cell_max(st, cu, cv, gh, gw, 1)
-    keep = np.zeros(n, np.bool_)
-    fam = np.zeros(n, np.int8)
+        r = v[k] // cell_s
+        c = u[k] // cell_s
+        if st[k] > m0[r, c]:
+            m0[r, c] = st[k]
+    local = np.zeros((gh, gw), np.float32)
+    for r in range(gh):
+        for c in range(gw):
+            best = m0[r, c]
+            for rr in range(max(r - 1, 0), min(r + 2, gh)):
+                for cc in range(max(c - 1, 0), min(c + 2, gw)):
+                    if m0[rr, cc] > best:
+                        best = m0[rr, cc]
+            local[r, c] = best
+    ou = np.empty(n, np.int64)
+    ov = np.empty(n, np.int64)
+    oox = np.empty(n, np.float32)
+    ooy = np.empty(n, np.float32)
+    onx = np.empty(n, np.float32)
+    ony = np.empty(n, np.float32)
+    ost = np.empty(n, np.float32)
+    ofam = np.empty(n, np.int8)
+    qx = np.empty(n, np.float32)
+    qy = np.empty(n, np.float32)
     m = 0
     for k in range(n):
-        if not (st[k] >= min_rel * local[cv[k], cu[k]]):
-            continue
-        cd = int((u[k] + np.float64(ox[k])) / cell_d + 0.5)
-        rd = int((v[k] + np.float64(oy[k])) / cell_d + 0.5)
+        uk = u[k]
+        vk = v[k]
+        cd = int((uk + np.float64(ox[k])) / cell_d + 0.5)
+        rd = int((vk + np.float64(oy[k])) / cell_d + 0.5)
         cd = min(max(cd, 0), gw_d - 1)
         rd = min(max(rd, 0), gh_d - 1)
         j = rd * gw_d + cd
         c1 = abs(dir4[j, 1] * nx[k] - dir4[j, 0] * ny[k])
         c2 = abs(dir4[j, 3] * nx[k] - dir4[j, 2] * ny[k])
-        if abs(c1 - c2) >= margin:
-            keep[k] = True
-            fam[k] = 1 if c1 >= c2 else 2
-            m += 1
-    ou = np.empty(m, np.int64)
-    ov = np.empty(m, np.int64)
-    oox = np.empty(m, np.float32)
-    ooy = np.empty(m, np.float32)
-    onx = np.empty(m, np.float32)
-    ony = np.empty(m, np.float32)
-    ost = np.empty(m, np.float32)
-    ofam = np.empty(m, np.int8)
-    qx = np.empty(m, np.float32)
-    qy = np.empty(m, np.float32)
+        keep = (st[k] >= min_rel * local[vk // cell_s, uk // cell_s]) & (abs(c1 - c2) >= margin)
+        ou[m] = uk
+        ov[m] = vk
+        oox[m] = ox[k]
+        ooy[m] = oy[k]
+        onx[m] = nx[k]
+        ony[m] = ny[k]
+        ost[m] = st[k]
+        ofam[m] = 1 if c1 >= c2 else 2
+        qx[m] = np.float32(uk) + ox[k]
+        qy[m] = np.float32(vk) + oy[k]
+        m += keep
+    nxs = len(xs)
+    oxu = np.empty(nxs, np.int64)
+    oxv = np.empty(nxs, np.int64)
+    oxs = np.empty(nxs, np.float32)
     j = 0
-    for k in range(n):
-        if keep[k]:
-            ou[j] = u[k]
-            ov[j] = v[k]
-            oox[j] = ox[k]
-            ooy[j] = oy[k]
-            onx[j] = nx[k]
-            ony[j] = ny[k]
-            ost[j] = st[k]
-            ofam[j] = fam[k]
-            qx[j] = np.float32(u[k]) + ox[k]
-            qy[j] = np.float32(v[k]) + oy[k]
-            j += 1
-    nxk = 0
-    keepx = np.zeros(len(xs), np.bool_)
-    for k in range(len(xs)):
-        if xs[k] >= cross_rel * local[xv[k] // cell_s, xu[k] // cell_s]:
-            keepx[k] = True
-            nxk += 1
-    oxu = np.empty(nxk, np.int64)
-    oxv = np.empty(nxk, np.int64)
-    oxs = np.empty(nxk, np.float32)
-    j = 0
-    for k in range(len(xs)):
-        if keepx[k]:
-            oxu[j] = xu[k]
-            oxv[j] = xv[k]
-            oxs[j] = xs[k]
-            j += 1
-    return ou, ov, oox, ooy, onx, ony, ost, ofam, qx, qy, oxu, oxv, oxs
+    for k in range(nxs):
+        oxu[j] = xu[k]
+        oxv[j] = xv[k]
+        oxs[j] = xs[k]
+        j += xs[k] >= cross_rel * local[xv[k] // cell_s, xu[k] // cell_s]
+    return ou[:m], ov[:m], oox[:m], ooy[:m], onx[:m], ony[:m], ost[:m], ofam[:m], qx[:m], qy[:m], oxu[:j], oxv[:j], oxs[:j]
 
 
 @njit
