@@ -107,6 +107,25 @@ class RigModel:
             np.array([self.pattern.n2, self.pattern.n1]), offs, np.ascontiguousarray(inv_dx), np.ascontiguousarray(guess),
         )
 
+    @cached_property
+    def pixel_sheet_tables(self) -> tuple[bool, tuple]:
+        """(kernel_ok, tables): the arguments after R, t of the kernels that go from camera pixels to
+        light-sheet points in one pass (`pipeline._k_frame_points`): index_min, sheet_nodes, iterations
+        (1 with projector distortion, else 0, as `intersect_light_sheets`), the camera table (empty
+        (0, 0, 2) without camera distortion: the pinhole inverse), 1/cam_table_px, the camera's K, then
+        `_sheet_kernel_tables`. kernel_ok is False for a distorted projector with more than 5 coefficients
+        (its projection is OpenCV's: use `intersect_light_sheets`)."""
+        procam = self.procam
+        proj = procam.projector
+        distorted = proj.has_distortion
+        tab = self.cam_xy_table if self.cam_xy_table is not None else np.zeros((0, 0, 2))
+        tables = (
+            np.ascontiguousarray(procam.R_proj_cam, np.float64), np.ascontiguousarray(procam.t_proj_cam, np.float64),
+            self.index_min, self.sheet_nodes, 1 if distorted else 0, tab, 1.0 / self.cam_table_px,
+            np.ascontiguousarray(procam.camera.K), *self._sheet_kernel_tables,
+        )
+        return not (distorted and proj.dist.size > 5), tables
+
     def junction_xy(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         """Normalised projector coordinates (N, 2) of junctions with integer labels inside the pattern."""
         return self.xy_junction[np.asarray(i) - self.index_min, np.asarray(j) - self.index_min]
