@@ -1,6 +1,7 @@
 """The extraction's compiled kernels against what they replace: OpenCV's Laplacian and NumPy's Hessian
-and Steger step (ridge_pass), a brute-force nearest-centre grid (stamp), and segments of known sample
-sets numbered as scipy's connected_components numbers them (link_segments)."""
+and Steger step (ridge_pass, over several blocks of its vectorised pass), NumPy's cell maxima, OpenCV's
+dilation and the family test (albedo_and_families), a brute-force nearest-centre grid (stamp), and segments
+of known sample sets numbered as scipy's connected_components numbers them (link_segments)."""
 
 from __future__ import annotations
 
@@ -34,7 +35,8 @@ def test_ridge_pass_matches_opencv_laplacian_and_the_numpy_steger_step():
     mask[[0, -1], :] = False
     mask[:, [0, -1]] = False
     vv, uu = np.nonzero(mask)  # row-major, as the kernel walks
-    assert n == len(uu) > 500
+    assert n == len(uu) > 2 * k._STEGER_BLOCK  # several blocks of the vectorised pass, the last one partial
+    assert n % k._STEGER_BLOCK != 0
     # the NumPy formulation the kernel replaced (float32 throughout)
     gg = lambda dv, du: G[vv + dv, uu + du]  # noqa: E731
     gx, gy = np.float32(0.5) * (gg(0, 1) - gg(0, -1)), np.float32(0.5) * (gg(1, 0) - gg(-1, 0))
@@ -64,7 +66,47 @@ def test_ridge_pass_matches_opencv_laplacian_and_the_numpy_steger_step():
     np.testing.assert_array_equal(ox, (t * ex)[keep])
     np.testing.assert_array_equal(oy, (t * ey)[keep])
     np.testing.assert_array_equal(nx, ex[keep])
+    np.testing.assert_array_equal(ny, ey[keep])
     np.testing.assert_array_equal(st, strength[keep])
+
+
+def test_albedo_and_families_match_the_numpy_passes():
+    rng = np.random.default_rng(11)
+    Hw, Ww, n, nxc = 150, 230, 4000, 900
+    u = np.sort(rng.integers(0, Ww, n)).astype(np.int64)
+    v = rng.integers(0, Hw, n).astype(np.int64)
+    ox, oy = rng.uniform(-0.5, 0.5, (2, n)).astype(np.float32)
+    ang = rng.uniform(0, np.pi, n)
+    nx, ny = np.cos(ang).astype(np.float32), np.sin(ang).astype(np.float32)
+    st = (rng.uniform(1, 60, n) * np.where(u > Ww // 2, 0.1, 1.0)).astype(np.float32)  # a dark right half
+    xu = rng.integers(0, Ww, nxc).astype(np.int64)
+    xv = rng.integers(0, Hw, nxc).astype(np.int64)
+    xs = rng.uniform(0, 20, nxc).astype(np.float32)
+    gh_d, gw_d, cell_d = 6, 9, 32.0
+    a1, a2 = rng.uniform(0.2, 0.6, (gh_d * gw_d)), rng.uniform(1.6, 2.0, (gh_d * gw_d))
+    dir4 = np.column_stack([np.cos(a1), np.sin(a1), np.cos(a2), np.sin(a2)]).astype(np.float32)
+    min_rel, cross_rel, margin = np.float32(0.15), np.float32(0.03), np.float32(0.15)
+    out = k.albedo_and_families(u, v, ox, oy, nx, ny, st, xu, xv, xs, Hw, Ww, min_rel, cross_rel, dir4, gh_d, gw_d, cell_d, margin)
+    # the NumPy passes: per-cell maximum, 3x3 dilation inside the grid, the tests, the nearest direction cell
+    cells = np.zeros((Hw // 16 + 1, Ww // 16 + 1), np.float32)
+    np.maximum.at(cells, (v // 16, u // 16), st)
+    local = cv2.dilate(cells, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    strong = st >= min_rel * local[v // 16, u // 16]
+    cd = np.clip(((u + ox.astype(np.float64)) / cell_d + 0.5).astype(int), 0, gw_d - 1)
+    rd = np.clip(((v + oy.astype(np.float64)) / cell_d + 0.5).astype(int), 0, gh_d - 1)
+    d = dir4[rd * gw_d + cd]
+    c1, c2 = np.abs(d[:, 1] * nx - d[:, 0] * ny), np.abs(d[:, 3] * nx - d[:, 2] * ny)
+    keep = strong & (np.abs(c1 - c2) >= margin)
+    assert 0.3 * n < keep.sum() < 0.9 * n and (~strong).sum() > 100  # both tests leave samples out
+    fam = np.where(c1 >= c2, 1, 2).astype(np.int8)
+    want = (u, v, ox, oy, nx, ny, st, fam, u.astype(np.float32) + ox, v.astype(np.float32) + oy)
+    for got, w in zip(out[:10], want):
+        assert got.dtype == w.dtype
+        np.testing.assert_array_equal(got, w[keep])
+    keep_x = xs >= cross_rel * local[xv // 16, xu // 16]
+    assert 0 < keep_x.sum() < nxc
+    for got, w in zip(out[10:], (xu, xv, xs)):
+        np.testing.assert_array_equal(got, w[keep_x])
 
 
 def test_stamp_holds_the_nearest_covering_centre():
