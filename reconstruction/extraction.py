@@ -26,14 +26,16 @@ top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055�
    within two smoothing scales of an end that reaches no crossing (a line cut by a silhouette or shadow)
    leave their segment: the cut bends the ridge there (decision 0059).
 
-Speed (decisions 0062, 0063): the smoothing is one OpenCV call into a per-thread working image; every
-per-pixel and per-sample step is a numba kernel (`reconstruction/_extract_kernels.py`) — one walk over the
-image for the Laplacian test, Hessian, eigenvector and Steger offset (row-major, so sample order is the
-scan order), one pass for the albedo test and the families, nearest-candidate lookups on coarse grids,
-linking with 4 probes per sample on a window of sample-id rows and a union-find, the line fits, end walks,
-arms, trims and chord tests as loops over samples or segments. The per-junction and per-edge tests
-(hundreds of elements) stay NumPy. The kernels compute what the NumPy passes they replaced did, in the
-same float widths and order.
+Speed (decisions 0062, 0063, 0069): the smoothing is one OpenCV call into a per-thread working image;
+every per-pixel and per-sample step is a numba kernel (`reconstruction/_extract_kernels.py`) — one walk
+over the image for the Laplacian test (a vectorised loop per row, candidates collected branch-free), then
+the Hessian, eigenvector and Steger offset of the candidates in blocks that LLVM vectorises (row-major, so
+sample order is the scan order), one branch-free pass for the albedo test and the families,
+nearest-candidate lookups on coarse grids, linking with 4 probes per sample on a window of sample-id rows
+and a union-find, the line fits, end walks, arms, trims and chord tests as loops over samples or segments.
+The per-junction and per-edge tests (hundreds of elements) stay NumPy. The kernels compute what the NumPy
+passes they replaced did, in the same float widths and order. Times per stage: see
+benchmarks/results/bench_extraction.md.
 """
 
 from __future__ import annotations
@@ -180,8 +182,8 @@ _workspace = threading.local()  # per thread: the full-resolution working image,
 
 
 def _work_buffer(shape: tuple[int, int]) -> np.ndarray:
-    """A float32 buffer of `shape` owned by the calling thread (a fresh 5 MB array per frame costs
-    about 1 ms of page faults at 1280×1024; decision 0063). Only `extract_grid`'s working image uses it."""
+    """A float32 buffer of `shape` owned by the calling thread (a fresh image-sized array per frame would be
+    page-faulted in by the filter every time; decision 0063). Only `extract_grid`'s working image uses it."""
     buf = getattr(_workspace, "G", None)
     if buf is None or buf.shape != shape:
         buf = np.empty(shape, np.float32)
