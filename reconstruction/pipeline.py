@@ -365,8 +365,8 @@ def _k_frame_points(p_j, q_junction, jl, labels, residual_j, q, index, family, j
     tw = cam_tab.shape[1]
     fx_c, skew_c, cx_c, fy_c, cy_c = K_cam[0, 0], K_cam[0, 1], K_cam[0, 2], K_cam[1, 1], K_cam[1, 2]
     L = end_n.shape[1]
-    # Pass 1: the candidates, their normalised camera coordinates (RigModel.cam_normalised) and the point on
-    # the end plane of their line's sheet (RigModel.intersect_light_sheets), or the given point.
+    # Pass 1: the candidates and their normalised camera coordinates (RigModel.cam_normalised), or the
+    # given point.
     n_outside = 0
     c = 0
     for n in range(P):
@@ -400,27 +400,37 @@ def _k_frame_points(p_j, q_junction, jl, labels, residual_j, q, index, family, j
             w11 = fx_ * fy_
             xc = cam_tab[y0, x0, 0] * w00 + cam_tab[y0, x0 + 1, 0] * w01 + cam_tab[y0 + 1, x0, 0] * w10 + cam_tab[y0 + 1, x0 + 1, 0] * w11
             yc = cam_tab[y0, x0, 1] * w00 + cam_tab[y0, x0 + 1, 1] * w01 + cam_tab[y0 + 1, x0, 1] * w10 + cam_tab[y0 + 1, x0 + 1, 1] * w11
-        f = family[n] - 1
-        li = min(max(int(index[n]) - index_min, 0), L - 1)
-        d0 = xc * r00 + yc * r01 + r02
-        d1 = xc * r10 + yc * r11 + r12
-        d2 = xc * r20 + yc * r21 + r22
-        nd = end_n[f, li, 0] * d0 + end_n[f, li, 1] * d1 + end_n[f, li, 2] * d2
-        lam = -end_t[f, li] / nd if abs(nd) >= 1e-9 else np.nan
-        if not (lam > 0):
-            lam = np.nan
         sid[c] = n
-        fc[c] = f
-        lc[c] = li
-        dx[c] = d0
-        dy[c] = d1
-        dz[c] = d2
-        px[c] = t0 + lam * d0
-        py[c] = t1 + lam * d1
-        pz[c] = t2 + lam * d2
+        fc[c] = family[n] - 1
+        lc[c] = min(max(int(index[n]) - index_min, 0), L - 1)
+        dx[c] = xc
+        dy[c] = yc
         c += 1
+    if not given:
+        # Pass 2: the ray direction R·(x, y, 1) and the point on the end plane of the line's sheet.
+        for a in range(c):
+            f = fc[a]
+            li = lc[a]
+            xc = dx[a]
+            yc = dy[a]
+            d0 = xc * r00 + yc * r01 + r02
+            d1 = xc * r10 + yc * r11 + r12
+            d2 = xc * r20 + yc * r21 + r22
+            nd = end_n[f, li, 0] * d0 + end_n[f, li, 1] * d1 + end_n[f, li, 2] * d2
+            lam = -end_t[f, li] / nd if abs(nd) >= 1e-9 else np.nan
+            if not (lam > 0):
+                lam = np.nan
+            dx[a] = d0
+            dy[a] = d1
+            dz[a] = d2
+            px[a] = t0 + lam * d0
+            py[a] = t1 + lam * d1
+            pz[a] = t2 + lam * d2
     if not given and iterations > 0:
         s_tmp = np.empty(c)
+        row = np.empty(c, np.int64)
+        chord_n_rows = chord_n.reshape(-1, 3)
+        chord_t_rows = chord_t.reshape(-1)
         k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
         fx, skew, cx, fy, cy = K_proj[0, 0], K_proj[0, 1], K_proj[0, 2], K_proj[1, 1], K_proj[1, 2]
         cu, cv = centre[0], centre[1]
@@ -430,7 +440,7 @@ def _k_frame_points(p_j, q_junction, jl, labels, residual_j, q, index, family, j
         top = float(n_chords - 1)
         mid = n_chords // 2
         for _ in range(iterations):
-            # Pass 2: the offset s = y − n·x (projector px from the pattern centre) of the other family's line
+            # Pass 3: the offset s = y − n·x (projector px from the pattern centre) of the other family's line
             # through each point's projection (Intrinsics.project, OpenCV's 5-coefficient model; NaN behind).
             for a in range(c):
                 z = pz[a]
@@ -443,12 +453,11 @@ def _k_frame_points(p_j, q_junction, jl, labels, residual_j, q, index, family, j
                 u = fx * xd + skew * yd + cx
                 v = fy * yd + cy
                 s_tmp[a] = (v - cv) - (n_other_1 if fc[a] == 0 else n_other_2) * (u - cu)
-            # Pass 3: the other family's fractional index there (np.interp over its line offsets, the search
-            # started from the mean spacing) picks the chord plane; the ray meets it.
+            # Pass 4: the other family's fractional index there (np.interp over its line offsets, the search
+            # started from the mean spacing) picks the chord plane (its row in the flat tables).
             for a in range(c):
                 f = fc[a]
                 o = 1 - f
-                li = lc[a]
                 s = s_tmp[a]
                 if s != s:
                     seg = mid  # the point missed the end plane: the middle chord
@@ -465,17 +474,21 @@ def _k_frame_points(p_j, q_junction, jl, labels, residual_j, q, index, family, j
                             lo += 1
                         other = inv_dx[o, lo] * (s - offsets[o, lo]) + float(index_min + lo)
                     seg = int(min(max((other - idx_min) * nodes, 0.0), top))
+                row[a] = (f * L + lc[a]) * n_chords + seg
+            # Pass 5: the ray meets that chord plane (two short passes overlap better than one long one).
+            for a in range(c):
+                r = row[a]
                 d0 = dx[a]
                 d1 = dy[a]
                 d2 = dz[a]
-                nd = chord_n[f, li, seg, 0] * d0 + chord_n[f, li, seg, 1] * d1 + chord_n[f, li, seg, 2] * d2
-                lam = -chord_t[f, li, seg] / nd if abs(nd) >= 1e-9 else np.nan
+                nd = chord_n_rows[r, 0] * d0 + chord_n_rows[r, 1] * d1 + chord_n_rows[r, 2] * d2
+                lam = -chord_t_rows[r] / nd if abs(nd) >= 1e-9 else np.nan
                 if not (lam > 0):
                     lam = np.nan
                 px[a] = t0 + lam * d0
                 py[a] = t1 + lam * d1
                 pz[a] = t2 + lam * d2
-    # Pass 4: the working volume, the depth map and the outputs: junctions, then the samples.
+    # Pass 6: the working volume, the depth map and the outputs: junctions, then the samples.
     m = 0
     for a in range(jl.shape[0]):
         x, y, zp = p_j[a, 0], p_j[a, 1], p_j[a, 2]
