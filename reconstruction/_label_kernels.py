@@ -157,6 +157,33 @@ def nearest_within_cells(q, pts, radius):
 
 
 @njit
+def _hypot(x, y):
+    """math.hypot(x, y) to the bit, inlined: glibc's (2.35+) algorithm for x86-64 without FMA (Borges' corrected
+    sqrt(x² + y²), sysdeps/ieee754/dbl-64/e_hypot.c), which is what libm's hypot runs here; infinities, NaN
+    and the scaled ranges (huge, tiny) call libm's. math.hypot costs ~15 ns per call here (a call into libm),
+    this ~5 ns; `test_hypot_equals_libm` checks it bit for bit."""
+    ax = abs(x)
+    ay = abs(y)
+    if ax < ay:
+        ax, ay = ay, ax
+    if not (ax <= 6.703903964971299e153 and ay >= 6.717876107567089e-139):  # 0x1p+511, 0x1p-459; NaN
+        return math.hypot(x, y)
+    if ay <= ax * 5.551115123125783e-17:  # 0x1p-54
+        return ax + ay
+    h = math.sqrt(ax * ax + ay * ay)
+    if h <= 2.0 * ay:
+        delta = h - ay
+        t1 = ax * (2.0 * delta - ax)
+        t2 = (delta - 2.0 * (ax - ay)) * delta
+    else:
+        delta = h - ax
+        t1 = 2.0 * delta * (ax - 2.0 * ay)
+        t2 = (4.0 * delta - ay) * ay + delta * delta
+    h -= (t1 + t2) / (2.0 * h)
+    return h
+
+
+@njit
 def _union_find_root(parent, a):
     while parent[a] != a:
         parent[a] = parent[parent[a]]
@@ -274,7 +301,10 @@ def traces(q, fam, r, c, H, W, link_px, lateral_px, cos_turn, w, ridge, ridge_st
     t = np.empty(n)
     for i in range(n):
         t[i] = (q[i, 0] - mx[comp[i]]) * cth[comp[i]] + (q[i, 1] - my[comp[i]]) * sth[comp[i]]
-    # Order: by component (counting sort), then along the axis.
+    # Order: by component (counting sort), then along the axis: a stable sort by t, i.e. by (t, sample id).
+    # The samples come in raster order, so a component is nearly sorted one way or the other: reversed
+    # when it runs backwards, then an insertion sort on (t, id) (the same order as the former stable
+    # mergesort, without allocations); a component that needs many moves falls back to the mergesort.
     start = np.zeros(ncomp + 1, np.int64)
     for i in range(n):
         start[comp[i] + 1] += 1
@@ -287,20 +317,31 @@ def traces(q, fam, r, c, H, W, link_px, lateral_px, cos_turn, w, ridge, ridge_st
         fill[comp[i]] += 1
     for k in range(ncomp):
         a, b = start[k], start[k + 1]
-        if b - a > 32:
-            seg = order[a:b].copy()
+        if b - a < 2:
+            continue
+        if t[order[b - 1]] < t[order[a]]:
+            for m in range((b - a) // 2):
+                v = order[a + m]
+                order[a + m] = order[b - 1 - m]
+                order[b - 1 - m] = v
+        budget = 8 * (b - a) + 64
+        moves = 0
+        for m in range(a + 1, b):
+            v = order[m]
+            tv = t[v]
+            j = m - 1
+            while j >= a and (t[order[j]] > tv or (t[order[j]] == tv and order[j] > v)):
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = v
+            moves += m - 1 - j
+            if moves > budget:
+                break
+        if moves > budget:
+            seg = np.sort(order[a:b])  # ids in increasing order, then a stable sort by t
             srt = np.argsort(t[seg], kind="mergesort")
             for m in range(b - a):
                 order[a + m] = seg[srt[m]]
-        else:  # short components: insertion sort in place (stable, no allocation)
-            for m in range(a + 1, b):
-                v = order[m]
-                tv = t[v]
-                j = m - 1
-                while j >= a and t[order[j]] > tv:
-                    order[j + 1] = order[j]
-                    j -= 1
-                order[j + 1] = v
     qs = np.empty((n, 2))
     ts = np.empty(n)
     for k in range(n):
@@ -309,7 +350,9 @@ def traces(q, fam, r, c, H, W, link_px, lateral_px, cos_turn, w, ridge, ridge_st
         ts[k] = t[order[k]]
     # Per component: the chord tangent at each position (tan = qs[k + w] − qs[k − w], clipped to the
     # component), and the cut between consecutive positions (the former back/fwd/tan tables, computed on
-    # the fly in the same operations).
+    # the fly in the same operations). The tangent keeps hypot's value to the bit (`_hypot`); the cut's
+    # lengths are square roots, and only a link whose lengths or tests lie within 1e-9 of a limit is
+    # decided again with hypot (a few ulp cannot change a decision that far from its limit).
     piece = np.zeros(n, np.int64)
     tangent = np.empty((n, 2))
     eps32 = np.float32(1e-6)
@@ -325,9 +368,11 @@ def traces(q, fam, r, c, H, W, link_px, lateral_px, cos_turn, w, ridge, ridge_st
             kf = min(k + w, last)
             tan0 = qs[kf, 0] - qs[kb, 0]
             tan1 = qs[kf, 1] - qs[kb, 1]
-            lt = max(math.hypot(tan0, tan1), 1e-12)
-            tangent[k, 0] = tan0 / lt
-            tangent[k, 1] = tan1 / lt
+            lt = max(_hypot(tan0, tan1), 1e-12)
+            T0 = tan0 / lt
+            T1 = tan1 / lt
+            tangent[k, 0] = T0
+            tangent[k, 1] = T1
             if k == last:
                 continue
             d0 = qs[k + 1, 0] - qs[k, 0]
@@ -339,31 +384,60 @@ def traces(q, fam, r, c, H, W, link_px, lateral_px, cos_turn, w, ridge, ridge_st
             elif dd < link2_lo:
                 cut = False
             else:
-                cut = math.hypot(d0, d1) > link_px
+                cut = _hypot(d0, d1) > link_px
             if not cut:
                 back0 = qs[k, 0] - qs[kb, 0]
                 back1 = qs[k, 1] - qs[kb, 1]
                 kf1 = min(k + 1 + w, last)
                 fwd0 = qs[kf1, 0] - qs[k + 1, 0]
                 fwd1 = qs[kf1, 1] - qs[k + 1, 1]
-                lb = math.hypot(back0, back1)
-                lf = math.hypot(fwd0, fwd1)
-                if lb >= 1.0:
-                    B0 = back0 / max(lb, 1e-12)
-                    B1 = back1 / max(lb, 1e-12)
-                else:
-                    B0 = tan0 / lt
-                    B1 = tan1 / lt
-                if lf >= 1.0:
-                    F0 = fwd0 / max(lf, 1e-12)
-                    F1 = fwd1 / max(lf, 1e-12)
-                else:
-                    F0 = tan0 / lt
-                    F1 = tan1 / lt
-                lateral = max(abs(d0 * B1 - d1 * B0), abs(d0 * F1 - d1 * F0))
-                along = abs(d0 * B0 + d1 * B1)
-                turn = B0 * F0 + B1 * F1
-                cut = lateral > lateral_px or along < lateral or turn < cos_turn
+                sb = back0 * back0 + back1 * back1
+                sf = fwd0 * fwd0 + fwd1 * fwd1
+                exact = abs(sb - 1.0) <= 1e-9 or abs(sf - 1.0) <= 1e-9
+                if not exact:
+                    if sb >= 1.0:
+                        lb = math.sqrt(sb)
+                        B0 = back0 / lb
+                        B1 = back1 / lb
+                    else:
+                        B0 = T0
+                        B1 = T1
+                    if sf >= 1.0:
+                        lf = math.sqrt(sf)
+                        F0 = fwd0 / lf
+                        F1 = fwd1 / lf
+                    else:
+                        F0 = T0
+                        F1 = T1
+                    lateral = max(abs(d0 * B1 - d1 * B0), abs(d0 * F1 - d1 * F0))
+                    along = abs(d0 * B0 + d1 * B1)
+                    turn = B0 * F0 + B1 * F1
+                    tol = 1e-9 * (1.0 + abs(d0) + abs(d1))
+                    if lateral > lateral_px + tol or along < lateral - tol or turn < cos_turn - 1e-9:
+                        cut = True
+                    elif lateral < lateral_px - tol and along > lateral + tol and turn > cos_turn + 1e-9:
+                        cut = False
+                    else:
+                        exact = True
+                if exact:
+                    lb = _hypot(back0, back1)
+                    lf = _hypot(fwd0, fwd1)
+                    if lb >= 1.0:
+                        B0 = back0 / max(lb, 1e-12)
+                        B1 = back1 / max(lb, 1e-12)
+                    else:
+                        B0 = T0
+                        B1 = T1
+                    if lf >= 1.0:
+                        F0 = fwd0 / max(lf, 1e-12)
+                        F1 = fwd1 / max(lf, 1e-12)
+                    else:
+                        F0 = T0
+                        F1 = T1
+                    lateral = max(abs(d0 * B1 - d1 * B0), abs(d0 * F1 - d1 * F0))
+                    along = abs(d0 * B0 + d1 * B1)
+                    turn = B0 * F0 + B1 * F1
+                    cut = lateral > lateral_px or along < lateral or turn < cos_turn
             if not cut and use_ridge:
                 r0 = ridge[order[k]]
                 r1 = ridge[order[k + 1]]
