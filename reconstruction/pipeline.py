@@ -8,10 +8,11 @@ camera ray and projector ray, every line sample by intersecting its camera ray w
 its labelled line (`reconstruction.geometry`). Lens distortion of both devices is removed at the
 boundary (normalised undistorted coordinates throughout).
 
-Speed: the triangulate stage's per-point work is numba kernels (decision 0065): gathering the labelled
-samples, the rig model's camera table and light sheets, the junction rays, and one pass that keeps the
-points inside the working volume, writes the depth map and converts the outputs. The rig model (tables
-and the labelling margin behind the ill-posed warning) is built once per rig and cached.
+Speed: the triangulate stage is two numba kernels after the junction rays (decisions 0065, 0071):
+`_k_frame_points` takes the labelled line samples from their pixels to the outputs (gather, the rig
+model's camera table, the light sheets, the working volume, the depth map, the float32/int32 conversion)
+in short passes over flat arrays inside one call, and `_k_segment_overlay` the overlay. The rig model
+(tables and the labelling margin behind the ill-posed warning) is built once per rig and cached.
 """
 
 from __future__ import annotations
@@ -341,10 +342,10 @@ def _k_frame_points(p_j, q_junction, jl, labels, residual_j, q, index, family, j
     the other) and residual (a sample's: that of the junction it took its index from, junction[n] < 0:
     junction 0's) to the float32/int outputs. Returns (kept, junctions kept, candidates, outside table).
 
-    The samples go through short passes over flat scratch arrays (gather and end plane; projection; chord
-    plane; outputs) rather than one loop doing everything per sample: the whole chain is one long
-    dependency chain per sample, and a loop body that long stops the processor from overlapping samples
-    (measured 2.0 ms against 1.0 ms per frame on tabletop, decision 0071).
+    The samples go through short passes over flat scratch arrays (gather and camera table; end plane;
+    projection; chord search; chord plane; outputs) rather than one loop doing everything per sample: the
+    work per sample is one long chain of dependent operations, and a loop body that long stops the
+    processor from overlapping samples (decision 0071).
     """
     H, W = depth.shape
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2]

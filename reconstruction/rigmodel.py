@@ -6,7 +6,8 @@ Built once per (ProCam, GridPattern, depth range) (`rig_model`, cached) and read
 Speed: the per-sample steps of triangulation (`cam_normalised`, `intersect_light_sheets`) are numba kernels
 (decision 0065), short passes over the samples with the per-rig tables and no per-frame allocation beyond
 their outputs. They compute what the NumPy formulation in each docstring describes (same operations,
-float rounding aside).
+float rounding aside). The triangulate stage does the same arithmetic from pixels to outputs in one call
+(`pipeline._k_frame_points`, arguments from `pixel_sheet_tables`, decision 0071).
 """
 
 from __future__ import annotations
