@@ -750,6 +750,62 @@ def trim_free_ends(seg_out, sidx, sg, sproj, smin, smax, seg_seed, sample_juncti
 
 
 @njit
+def junction_sample_ids(arm_of, new_id, seg):
+    """Per sample: the kept junction holding it (new_id[arm_of], −1: none; new_id's last entry is −1) and
+    its segment as reported (−1 where a junction holds it). int64 (P,) each, as NumPy's fancy indexing
+    and np.where gave."""
+    P = len(arm_of)
+    sample_junction = np.empty(P, np.int64)
+    seg_out = np.empty(P, np.int64)
+    none = new_id[len(new_id) - 1]
+    for i in range(P):
+        a = arm_of[i]
+        j = new_id[a] if a >= 0 else none
+        sample_junction[i] = j
+        seg_out[i] = -1 if j >= 0 else seg[i]
+    return sample_junction, seg_out
+
+
+@njit
+def leave_near(grid, px, py, inv_cs, pad, cx, cy, rmax, sample_junction, seg_out):
+    """The samples (px, py) float32 whose `grid` entry k (as `look_dist`) is within `rmax` (float32) of
+    centre k leave their segment (seg_out = −1 in place) unless a junction holds them; returns how many
+    samples are that close."""
+    GH, GW = grid.shape
+    n_near = 0
+    for i in range(len(px)):
+        c = min(max(int(px[i] * inv_cs) + pad, 0), GW - 1)
+        r = min(max(int(py[i] * inv_cs) + pad, 0), GH - 1)
+        k = grid[r, c]
+        if k >= 0:
+            dx = px[i] - cx[k]
+            dy = py[i] - cy[k]
+            if np.float32(math.sqrt(dx * dx + dy * dy)) <= rmax:
+                n_near += 1
+                if sample_junction[i] < 0:
+                    seg_out[i] = -1
+    return n_near
+
+
+@njit
+def edge_skips(a_j, b_j, f_, elen, M):
+    """An edge skips a crossing when it is more than 1.6 × the shortest edge of its family at either end:
+    per edge, elen > 1.6·min over the edges of family f_ at junction a_j, or at b_j (float64; the
+    minimum as np.minimum.at takes it, NaN propagating)."""
+    shortest = np.full((M + 1, 2), np.inf)
+    for ends_ in (a_j, b_j):
+        for e in range(len(elen)):
+            s = shortest[ends_[e], f_[e]]
+            x = elen[e]
+            if x < s or x != x:
+                shortest[ends_[e], f_[e]] = x
+    skip = np.empty(len(elen), np.bool_)
+    for e in range(len(elen)):
+        skip[e] = (elen[e] > 1.6 * shortest[a_j[e], f_[e]]) | (elen[e] > 1.6 * shortest[b_j[e], f_[e]])
+    return skip
+
+
+@njit
 def chord_stats(seg, cand, qx, qy, qa, cn, S):
     """Per segment with both ends on junctions (`cand`): RMS and maximum distance (float64) of its
     samples from the chord through point qa (S, 2) with unit normal cn (S, 2)."""

@@ -446,12 +446,11 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     junction_rms = rms_j[valid] * scale if ns else np.zeros((0, 2))
     M = len(q_junction)
     stats["junctions"] = M
-    sample_junction = new_id[arm_of]
     segment_ends = new_id[seg_seed]
     # samples a kept junction holds are reported with it, not with their segment; near a rejected
     # crossing (T- and L-shapes: the pattern's rim, occlusions) the other line's light biases the ridge,
     # so samples there are left out of their segment
-    seg_out = np.where(sample_junction >= 0, -1, seg)
+    sample_junction, seg_out = _k.junction_sample_ids(arm_of, new_id, seg)
     if S and options.free_end_trim_sigma > 0:
         # a line cut by a silhouette or a shadow edge is half a bar there: its ridge bends away from the true
         # centre within about one smoothing scale of the cut; samples that close to a free end (one that
@@ -462,10 +461,10 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     biased = np.concatenate([seeds[~valid], t_points])
     if len(biased) and P:
         r_bias = r0 + s_w
-        kb, _ = look_dist(stamp(biased, r_bias), qx32, qy32, biased, r_bias)
-        nb = kb >= 0
-        seg_out[nb & (sample_junction < 0)] = -1
-        stats["biased_samples"] = int(nb.sum())
+        b32 = np.asarray(biased, np.float32).reshape(-1, 2)
+        stats["biased_samples"] = _k.leave_near(
+            stamp(biased, r_bias), qx32, qy32, inv_cs, _PAD, b32[:, 0].copy(), b32[:, 1].copy(), np.float32(r_bias), sample_junction, seg_out
+        )  # fmt: skip
     t4 = time.perf_counter()
     ms["junctions+segments"] = 1e3 * (t4 - t3)
 
@@ -499,11 +498,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     # a crossing nobody detected lets a segment run on to the next junction: an edge about twice as long
     # as its neighbour along the same line (at either end) skipped one; drop it
     elen = np.hypot(*(q_junction[b_j] - q_junction[a_j]).T)
-    shortest = np.full((M + 1, 2), np.inf)
-    for ends_ in (a_j, b_j):
-        np.minimum.at(shortest, (ends_, fam_s.astype(np.intp) - 1), elen)
-    f_ = fam_s.astype(np.intp) - 1
-    skip = (elen > 1.6 * shortest[a_j, f_]) | (elen > 1.6 * shortest[b_j, f_])
+    skip = _k.edge_skips(a_j, b_j, fam_s.astype(np.intp) - 1, elen, M)
     stats["edges_skipping"] = int((good & skip).sum())
     good &= ~skip
     edges = np.column_stack([a_j, b_j])[good]
