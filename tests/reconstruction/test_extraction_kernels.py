@@ -1,7 +1,8 @@
 """The extraction's compiled kernels against what they replace: OpenCV's Laplacian and NumPy's Hessian
 and Steger step (ridge_pass, over several blocks of its vectorised pass), NumPy's cell maxima, OpenCV's
 dilation and the family test (albedo_and_families), a brute-force nearest-centre grid (stamp), and segments
-of known sample sets numbered as scipy's connected_components numbers them (link_segments)."""
+of known sample sets numbered as scipy's connected_components numbers them (link_segments), and the small
+kernels that replaced NumPy passes (junction_sample_ids, leave_near, edge_skips)."""
 
 from __future__ import annotations
 
@@ -159,3 +160,45 @@ def test_link_segments_finds_the_pieces_numbered_like_scipy():
     remap[keep] = np.arange(keep.sum())
     assert S == 4
     np.testing.assert_array_equal(seg, remap[comp])
+
+
+def test_junction_sample_ids_bias_cut_and_edge_skips_match_numpy():
+    rng = np.random.default_rng(21)
+    P, ns = 3000, 40
+    arm_of = np.where(rng.random(P) < 0.4, rng.integers(0, ns, P), -1).astype(np.int64)
+    valid = rng.random(ns) < 0.7
+    new_id = np.full(ns + 1, -1, np.int64)
+    new_id[:ns][valid] = np.arange(int(valid.sum()))
+    seg = np.where(rng.random(P) < 0.8, rng.integers(0, 200, P), -1).astype(np.int64)
+    sample_junction, seg_out = k.junction_sample_ids(arm_of, new_id, seg)
+    want_j = new_id[arm_of]
+    np.testing.assert_array_equal(sample_junction, want_j)
+    np.testing.assert_array_equal(seg_out, np.where(want_j >= 0, -1, seg))
+    assert (want_j >= 0).sum() > 300 and ((arm_of >= 0) & (want_j < 0)).sum() > 50
+
+    # the bias cut: as look_dist on the same grid, then the NumPy mask
+    gh, gw, pad, cs, radius = 40, 50, 16, 2.0, 3.0
+    cx, cy = rng.uniform(0, 2 * gw - 2, 30), rng.uniform(0, 2 * gh - 2, 30)
+    grid = np.empty((gh + 2 * pad, gw + 2 * pad), np.int32)
+    k.stamp(cx, cy, radius, cs, grid, pad)
+    px, py = rng.uniform(0, 2 * gw, P).astype(np.float32), rng.uniform(0, 2 * gh, P).astype(np.float32)
+    c32x, c32y, r32, inv = cx.astype(np.float32), cy.astype(np.float32), np.float32(radius), np.float32(1 / cs)
+    kb, _ = k.look_dist(grid, px, py, inv, pad, c32x, c32y, r32)
+    want_seg = seg_out.copy()
+    want_seg[(kb >= 0) & (sample_junction < 0)] = -1
+    got_seg = seg_out.copy()
+    n_near = k.leave_near(grid, px, py, inv, pad, c32x, c32y, r32, sample_junction, got_seg)
+    assert n_near == (kb >= 0).sum() > 100
+    np.testing.assert_array_equal(got_seg, want_seg)
+
+    # the skip test against np.minimum.at
+    E, M = 500, 60
+    a_j, b_j = rng.integers(0, M, E), rng.integers(0, M, E)
+    f_ = rng.integers(0, 2, E)
+    elen = rng.uniform(5, 20, E)
+    shortest = np.full((M + 1, 2), np.inf)
+    for ends_ in (a_j, b_j):
+        np.minimum.at(shortest, (ends_, f_), elen)
+    want = (elen > 1.6 * shortest[a_j, f_]) | (elen > 1.6 * shortest[b_j, f_])
+    assert 0 < want.sum() < E
+    np.testing.assert_array_equal(k.edge_skips(a_j, b_j, f_, elen, M), want)
