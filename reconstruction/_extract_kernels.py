@@ -98,8 +98,8 @@ def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross):
     How (decision 0069): per row, the Laplacian test into a byte per pixel (a vectorised loop), then the
     candidates of each 8-byte word with a flag, branch-free (every pixel of the word written, the count
     advanced by its flag); then blocks of candidates: their 3×3 neighbourhoods gathered, `steger_block`
-    (vectorised), and the kept ones compacted branch-free (written at the next free place, the place
-    advancing only where kept).
+    (vectorised), the places of the kept ones listed branch-free (each place written, the count advanced
+    by the flag), and only those copied out.
     """
     H, W = G.shape
     cand = np.empty(H * W + 8, np.int32)
@@ -131,6 +131,8 @@ def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross):
     B = _STEGER_BLOCK
     V = np.empty((9, B), np.float32)
     O = np.empty((8, B), np.float32)
+    il = np.empty(B, np.int64)  # kept line samples' and crossing candidates' places in a block
+    ix = np.empty(B, np.int64)
     g = G.ravel()
     m = 0
     mx = 0
@@ -148,22 +150,33 @@ def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross):
             V[7, j] = g[i - W + 1]
             V[8, j] = g[i - W - 1]
         steger_block(nb, V, thr, neg_aniso, neg_cross, O)
-        for j in range(nb):  # n outputs at most, so the next free place is always inside the arrays
+        kl = 0
+        kx = 0
+        for j in range(nb):  # the places of the kept ones in the block, branch-free
+            il[kl] = j
+            kl += O[7, j] != 0
+            ix[kx] = j
+            kx += O[6, j] != 0
+        for t in range(kx):
+            j = ix[t]
             i = cand[k0 + j]
             vv = i // W
-            uu = i - vv * W
-            xu[mx] = uu
+            xu[mx] = i - vv * W
             xv[mx] = vv
             xs[mx] = O[5, j]
-            mx += O[6, j] != 0
-            u[m] = uu
+            mx += 1
+        for t in range(kl):
+            j = il[t]
+            i = cand[k0 + j]
+            vv = i // W
+            u[m] = i - vv * W
             v[m] = vv
             ox[m] = O[0, j]
             oy[m] = O[1, j]
             nx[m] = O[2, j]
             ny[m] = O[3, j]
             st[m] = O[4, j]
-            m += O[7, j] != 0
+            m += 1
     # views, not copies: albedo_and_families copies what it keeps (the next free place never passes the
     # element being read)
     return n, u[:m], v[:m], ox[:m], oy[:m], nx[:m], ny[:m], st[:m], xu[:mx], xv[:mx], xs[:mx]
