@@ -1710,3 +1710,46 @@ def cross_round_write(todo, k_end, jid_end, both_ends, unlabelled, first, last, 
                 seed_jid[sid[k]] = jv
                 written += 1
     return taken, written
+
+
+@njit
+def gap_candidates(valid, index, sid, piece, cut_samples):
+    """The candidates of labelling._fill_gaps in increasing sample order: valid samples without an index
+    and not cut by the profile test (cut_samples), either off the traces (the mixing zone) or on a piece
+    that has a labelled sample (its unlabelled ends). One pass instead of the NumPy masks it replaces."""
+    P = valid.shape[0]
+    n = sid.shape[0]
+    state = np.zeros(P, np.int8)  # 1: on a trace, 2: cut by the profile test
+    for k in range(cut_samples.shape[0]):
+        state[cut_samples[k]] = 2
+    npc = piece[n - 1] + 1 if n else 0
+    lab_piece = np.zeros(npc, np.bool_)
+    piece_of = np.empty(P, np.int64)
+    for k in range(n):
+        s = sid[k]
+        if state[s] == 0:
+            state[s] = 1
+        piece_of[s] = piece[k]
+        if math.isfinite(index[s]):
+            lab_piece[piece[k]] = True
+    out = np.empty(P, np.intp)
+    m = 0
+    for s in range(P):
+        if not valid[s] or math.isfinite(index[s]) or state[s] == 2:
+            continue
+        if state[s] == 0 or lab_piece[piece_of[s]]:
+            out[m] = s
+            m += 1
+    return out[:m]
+
+
+@njit
+def drop_unlabelled_junctions(index, seed_jid):
+    """The end of labelling.label_samples: junction −1 where no index; returns the number labelled."""
+    m = 0
+    for s in range(index.shape[0]):
+        if math.isfinite(index[s]):
+            m += 1
+        else:
+            seed_jid[s] = -1
+    return m

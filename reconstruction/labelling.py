@@ -807,7 +807,6 @@ def label_samples(
             stats["samples_from_crossings"] = _crossing_seeds(
                 q, fam, sid, piece, ts, tangent, index, seed_jid, model, depth_range_mm,
                 options.cross_radius * model.junction_step_cam_px, options.cross_trim_sigma * sigma_px, options, grid)
-            got = np.isfinite(index[sid])
         if options.continue_lines and model is not None:
             cont = continue_lines(q, fam, sid, piece, ts, tangent, index, seed_jid, valid, model=model, depth_range_mm=depth_range_mm,
                                   reach_px=options.continue_reach * model.junction_step_cam_px,
@@ -815,29 +814,20 @@ def label_samples(
                                   anchor=options.fill_anchor, trim_px=options.cross_trim_sigma * sigma_px, grid=grid)
             stats["samples_continued"] = cont["samples"]
             stats["pieces_continuation_failed"] = cont["pieces_failed"]
+        if (options.cross_pieces or options.continue_lines) and model is not None:
             got = np.isfinite(index[sid])
         stats["samples_unseeded"] = int((~got).sum())
+        cut_samples = np.zeros(0, np.intp)
         if image is not None and line_width_px and options.max_profile_drop > 0:
             g = np.flatnonzero(got)
             cut = _profile_drop_traces(blurred, q, sid, tangent, g, float(line_width_px), ridge) > options.max_profile_drop
-            index[sid[g[cut]]] = np.nan
-            stats["cut_profile"] = int(cut.sum())
-            profile_cut = np.zeros(P, bool)
-            profile_cut[sid[g[cut]]] = True
-        else:
-            profile_cut = np.zeros(P, bool)
+            cut_samples = sid[g[cut]]
+            index[cut_samples] = np.nan
+            stats["cut_profile"] = int(len(cut_samples))
         if options.fill_gaps:
-            cand = np.flatnonzero(valid & ~np.isfinite(index) & ~profile_cut)
-            in_trace = np.zeros(P, bool)
-            in_trace[sid] = True
-            lab_piece = np.zeros(int(piece[-1]) + 1, bool)
-            lab_piece[piece[np.isfinite(index[sid])]] = True
-            piece_of = np.full(P, -1, np.int64)
-            piece_of[sid] = piece
             # gap samples: the mixing zone, and the unlabelled ends of labelled pieces
-            cand = cand[~in_trace[cand] | lab_piece[np.maximum(piece_of[cand], 0)]]
+            cand = _k.gap_candidates(valid, index, sid, piece, cut_samples)
             reach = (options.mix_sigma + options.cross_trim_sigma) * sigma_px + 2.0
             stats["samples_gap_filled"] = _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, cand, reach, options)
-    seed_jid[~np.isfinite(index)] = -1
-    stats["samples_labelled"] = int(np.isfinite(index).sum())
+    stats["samples_labelled"] = int(_k.drop_unlabelled_junctions(index, seed_jid))
     return SampleLabels(index, q_out, seed_jid, stats)

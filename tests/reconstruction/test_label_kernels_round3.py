@@ -370,3 +370,27 @@ def test_junction_seeds_equal_the_round2_search():
     for g, w in zip((seed, seed_jid, q_out, index), want):
         np.testing.assert_array_equal(g, w)
     assert n == int(np.isfinite(want[3]).sum()) > 20 and (want[0] != -9).sum() > 100
+
+
+def test_gap_candidates_equal_the_numpy_masks():
+    rng = np.random.default_rng(8)
+    P = 3000
+    valid = rng.random(P) > 0.1
+    index = np.where(rng.random(P) > 0.5, rng.integers(-5, 5, P).astype(float), np.nan)
+    sid = np.sort(rng.choice(P, 2000, replace=False)).astype(np.int64)
+    rng.shuffle(sid)
+    piece = np.sort(rng.integers(0, 300, len(sid))).astype(np.int64)
+    cut_samples = rng.choice(sid, 100, replace=False).astype(np.intp)
+    got = K.gap_candidates(valid, index, sid, piece, cut_samples)
+    profile_cut = np.zeros(P, bool)
+    profile_cut[cut_samples] = True
+    cand = np.flatnonzero(valid & ~np.isfinite(index) & ~profile_cut)
+    in_trace = np.zeros(P, bool)
+    in_trace[sid] = True
+    lab_piece = np.zeros(int(piece[-1]) + 1, bool)
+    lab_piece[piece[np.isfinite(index[sid])]] = True
+    piece_of = np.full(P, -1, np.int64)
+    piece_of[sid] = piece
+    want = cand[~in_trace[cand] | lab_piece[np.maximum(piece_of[cand], 0)]]
+    np.testing.assert_array_equal(got, want)
+    assert len(want) > 100 and len(want) < len(cand)  # both kinds kept, some dropped
