@@ -530,19 +530,18 @@ def link_segments(u, v, core, qx, qy, nx, ny, fam, Hw, Ww):
 
 
 @njit
-def line_fit(groups, idx, qx, qy, n_groups):
-    """Per-group total-least-squares line of the points (qx[idx[k]], qy[idx[k]]) (as float64) of group
-    groups[k]: centroid (G, 2), unit direction (G, 2), RMS distance (G,), count (G,) int64 (sums in input
-    order, as np.bincount)."""
-    N = len(groups)
+def line_fit_xy(groups, X, Y, n, n_groups):
+    """Per-group total-least-squares line of the points (X[k], Y[k]) float64 of group groups[k], k < n:
+    centroid (G, 2), unit direction (G, 2), RMS distance (G,), count (G,) int64 (sums in input order, as
+    np.bincount)."""
     num = np.zeros(n_groups, np.int64)
     mx = np.zeros(n_groups)
     my = np.zeros(n_groups)
-    for k in range(N):
+    for k in range(n):
         g = groups[k]
         num[g] += 1
-        mx[g] += np.float64(qx[idx[k]])
-        my[g] += np.float64(qy[idx[k]])
+        mx[g] += X[k]
+        my[g] += Y[k]
     for g in range(n_groups):
         s = np.float64(max(num[g], 1))
         mx[g] /= s
@@ -550,10 +549,10 @@ def line_fit(groups, idx, qx, qy, n_groups):
     sxx = np.zeros(n_groups)
     syy = np.zeros(n_groups)
     sxy = np.zeros(n_groups)
-    for k in range(N):
+    for k in range(n):
         g = groups[k]
-        dx = np.float64(qx[idx[k]]) - mx[g]
-        dy = np.float64(qy[idx[k]]) - my[g]
+        dx = X[k] - mx[g]
+        dy = Y[k] - my[g]
         sxx[g] += dx * dx
         syy[g] += dy * dy
         sxy[g] += dx * dy
@@ -574,6 +573,18 @@ def line_fit(groups, idx, qx, qy, n_groups):
         cen[g, 0] = mx[g]
         cen[g, 1] = my[g]
     return cen, dr, rms, num
+
+
+@njit
+def line_fit(groups, idx, qx, qy, n_groups):
+    """`line_fit_xy` of the points (qx[idx[k]], qy[idx[k]]) (float32, taken as float64)."""
+    N = len(groups)
+    X = np.empty(N)
+    Y = np.empty(N)
+    for k in range(N):
+        X[k] = np.float64(qx[idx[k]])
+        Y[k] = np.float64(qy[idx[k]])
+    return line_fit_xy(groups, X, Y, N, n_groups)
 
 
 @njit
@@ -689,54 +700,57 @@ def junction_fits(arm_of, fam, qx, qy, nx, ny, sx, sy, ns):
     on either side of the candidate (beyond 0.5 px), their mean signed offsets from the fit on either
     side, and the mean |sin| between the fit and the samples' own directions.
 
-    Returns cen (2ns, 2), dr (2ns, 2), rms (2ns,), cnt (2ns,), n_neg, n_pos, m_neg, m_pos, mean_sin (2ns,)."""
+    Returns cen (2ns, 2), dr (2ns, 2), rms (2ns,), cnt (2ns,), n_neg, n_pos, m_neg, m_pos, mean_sin (2ns,).
+    The side counts and sums are taken branch-free (adding 0 where a sample is not on that side: the
+    same sums)."""
     G = 2 * ns
+    P = len(arm_of)
+    grp = np.empty(P, np.int64)  # the arm samples (float64 coordinates and normals), in sample order
+    X = np.empty(P)
+    Y = np.empty(P)
+    NX = np.empty(P)
+    NY = np.empty(P)
     na = 0
-    for i in range(len(arm_of)):
-        if arm_of[i] >= 0:
-            na += 1
-    grp = np.empty(na, np.int64)
-    aidx = np.empty(na, np.int64)
-    k = 0
-    for i in range(len(arm_of)):
-        if arm_of[i] >= 0:
-            grp[k] = 2 * arm_of[i] + fam[i] - 1
-            aidx[k] = i
-            k += 1
-    cen, dr, rms, cnt = line_fit(grp, aidx, qx, qy, G)
-    # inliers, compacted in place (order kept)
-    m = 0
+    for i in range(P):  # branch-free: every sample written at the next place, kept where on an arm
+        a = arm_of[i]
+        grp[na] = 2 * a + fam[i] - 1
+        X[na] = np.float64(qx[i])
+        Y[na] = np.float64(qy[i])
+        NX[na] = np.float64(nx[i])
+        NY[na] = np.float64(ny[i])
+        na += a >= 0
+    cen, dr, rms, cnt = line_fit_xy(grp, X, Y, na, G)
+    m = 0  # inliers, compacted in place (order kept)
     for k in range(na):
         g = grp[k]
-        i = aidx[k]
-        off = abs((np.float64(qx[i]) - cen[g, 0]) * dr[g, 1] - (np.float64(qy[i]) - cen[g, 1]) * dr[g, 0])
+        off = abs((X[k] - cen[g, 0]) * dr[g, 1] - (Y[k] - cen[g, 1]) * dr[g, 0])
         if off <= max(1.0, 3 * rms[g]):
             grp[m] = g
-            aidx[m] = i
+            X[m] = X[k]
+            Y[m] = Y[k]
+            NX[m] = NX[k]
+            NY[m] = NY[k]
             m += 1
-    grp2 = grp[:m]
-    bidx = aidx[:m]
-    cen, dr, rms, cnt = line_fit(grp2, bidx, qx, qy, G)
+    cen, dr, rms, cnt = line_fit_xy(grp, X, Y, m, G)
     n_neg = np.zeros(G)
     n_pos = np.zeros(G)
     s_neg = np.zeros(G)
     s_pos = np.zeros(G)
     s_sin = np.zeros(G)
     for k in range(m):
-        g = grp2[k]
+        g = grp[k]
         c = g // 2
-        i = bidx[k]
-        bx = np.float64(qx[i])
-        by = np.float64(qy[i])
+        bx = X[k]
+        by = Y[k]
         s = (bx - sx[c]) * dr[g, 0] + (by - sy[c]) * dr[g, 1]
         off = (bx - cen[g, 0]) * dr[g, 1] - (by - cen[g, 1]) * dr[g, 0]
-        if s < -0.5:
-            n_neg[g] += 1.0
-            s_neg[g] += off
-        if s > 0.5:
-            n_pos[g] += 1.0
-            s_pos[g] += off
-        s_sin[g] += abs(np.float64(nx[i]) * dr[g, 0] + np.float64(ny[i]) * dr[g, 1])
+        neg = s < -0.5
+        pos = s > 0.5
+        n_neg[g] += 1.0 if neg else 0.0
+        s_neg[g] += off if neg else 0.0
+        n_pos[g] += 1.0 if pos else 0.0
+        s_pos[g] += off if pos else 0.0
+        s_sin[g] += abs(NX[k] * dr[g, 0] + NY[k] * dr[g, 1])
     m_neg = np.empty(G)
     m_pos = np.empty(G)
     mean_sin = np.empty(G)
