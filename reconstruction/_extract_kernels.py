@@ -388,10 +388,11 @@ def centroids(grid, xu, xv, xs, sx, sy, cs, pad, rmax):
 def ring_counts(near, dist, fam, r0, ns):
     """(ns, 2) samples of each family with a candidate `near` (−1: none) at a distance above r0 (float32)."""
     n_ring = np.zeros((ns, 2), np.int64)
-    for i in range(len(near)):
+    if ns == 0:
+        return n_ring
+    for i in range(len(near)):  # branch-free: samples without a candidate add 0 to candidate 0
         k = near[i]
-        if k >= 0 and dist[i] > r0:
-            n_ring[k, fam[i] - 1] += 1
+        n_ring[max(k, 0), fam[i] - 1] += (k >= 0) & (dist[i] > r0)
     return n_ring
 
 
