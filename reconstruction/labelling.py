@@ -741,11 +741,13 @@ def label_samples(
     (`max_profile_drop`, skipped without them).
 
     Speed: the per-sample steps (valid samples and their cells, mixing zone, seeds, trace linking and
-    cutting, the nearest seed, the crossing search at piece ends, the continuation, gap filling) are
-    compiled loops (`reconstruction._label_kernels`, `_continuation_kernels`, decisions 0064 and 0067);
-    one bucket grid of the valid samples per frame serves every crossing search. The image is box-filtered
-    once with OpenCV; a uint8 image is then read in compiled passes that repeat cv2.remap's arithmetic
-    (other types through cv2.remap). Light sheets and projections stay with `RigModel`.
+    cutting, the nearest seed, the crossing search at piece ends, the continuation, gap candidates and
+    gap filling) are compiled loops (`reconstruction._label_kernels`, `_continuation_kernels`, decisions
+    0064, 0067 and 0070: the mixing zone as bit rows, components ordered by an insertion sort, libm's hypot
+    inlined, each cell's seed candidates listed once); one bucket grid of the valid samples per frame serves
+    every crossing search. The image is box-filtered once with OpenCV; a uint8 image is then read in
+    compiled passes that repeat cv2.remap's arithmetic (other types through cv2.remap). Light sheets and
+    projections stay with `RigModel`. Times: benchmarks/results/bench_reconstruction.md.
     """
     q = np.asarray(obs.q, np.float64).reshape(-1, 2)
     fam = np.asarray(obs.family).astype(np.intp)
