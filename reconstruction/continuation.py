@@ -36,8 +36,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from reconstruction._continuation_kernels import chain_values, crossing_in_gap, facing_links, piece_ends, samples_of, write_pieces
+from reconstruction._continuation_kernels import chain_values, crossing_in_gap, piece_ends, samples_of, write_pieces
 from reconstruction._label_kernels import crossing_hits_traces, sample_grid
+from reconstruction._link_kernels import facing_links_mid
 from reconstruction._label_kernels import project_nearest_line as project_nearest_line_kernel
 from reconstruction.geometry import depth_cam
 from reconstruction.rigmodel import RigModel
@@ -46,6 +47,14 @@ from reconstruction.rigmodel import RigModel
 FACING_DEG = 12.0
 #: a crossing's two tangents must differ by at least this to be intersected
 MIN_CROSSING_DEG = 20.0
+
+
+def crossing_gap_px(sigma_px: float, *, mix_sigma: float, trim_sigma: float, min_angle_deg: float) -> float:
+    """The longest gap a crossing leaves in a trace (camera px, decision 0072): the mixing zone (mix_sigma·σ
+    from the other line's samples) and the trimmed ends (trim_sigma·σ) on both sides, measured along a line
+    that crosses the other at min_angle_deg. It depends on the smoothing and the crossing angle, not on the
+    grid's pitch: on a foreshortened surface the junction step shrinks, the gap does not."""
+    return 2.0 * (mix_sigma + trim_sigma) * sigma_px / np.sin(np.deg2rad(min_angle_deg))
 
 
 def nearest_line(model: RigModel, family: np.ndarray, uv_proj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -133,7 +142,7 @@ def continue_lines(
     f_e = fam[sid[end_pos]].astype(np.int64)
 
     # 1. links between facing ends across a crossing's gap
-    a, b, gap, i, j = facing_links(e, u, f_e, n_p, labelled, float(reach_px), float(lateral_px), float(np.cos(np.deg2rad(FACING_DEG))))
+    a, b, gap, i, j = facing_links_mid(e, u, f_e, n_p, labelled, float(reach_px), float(lateral_px), float(np.cos(np.deg2rad(FACING_DEG))))
     if len(a) == 0:
         return stats
     if grid is None:
