@@ -530,7 +530,7 @@ class TraceOptions:
     continue_lines: bool = True
     continue_reach: float = 0.6
     continue_lateral_px: float = 1.0
-    continue_tol_px: float = 1.5
+    continue_tol_px: float = 1.0
     continue_gap_deg: float = 45.0
 
 
