@@ -811,7 +811,7 @@ def label_samples(
             if options.continue_gap_deg > 0:
                 reach_cont = max(reach_cont, cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                      min_angle_deg=options.continue_gap_deg))
-            grid = _sample_grid(q, valid, sid, max(model.junction_step_cam_px * options.cross_radius, reach_cont))
+            grid = _sample_grid(q, valid, sid, model.junction_step_cam_px * max(options.cross_radius, options.continue_reach))
         if options.cross_pieces and model is not None:
             stats["samples_from_crossings"] = _crossing_seeds(
                 q, fam, sid, piece, ts, tangent, index, seed_jid, model, depth_range_mm,
@@ -819,7 +819,7 @@ def label_samples(
             got = np.isfinite(index[sid])
         if options.continue_lines and model is not None:
             cont = continue_lines(q, fam, sid, piece, ts, tangent, index, seed_jid, valid, model=model, depth_range_mm=depth_range_mm,
-                                  reach_px=reach_cont,
+                                  reach_px=reach_cont, check_radius_px=options.continue_reach * model.junction_step_cam_px,
                                   lateral_px=options.continue_lateral_px * cell, tol_px=options.continue_tol_px,
                                   anchor=options.fill_anchor, trim_px=options.cross_trim_sigma * sigma_px, grid=grid)
             stats["samples_continued"] = cont["samples"]
