@@ -75,7 +75,7 @@ def test_a_wrong_index_is_mostly_rejected_by_the_crossing_check(dense_hole, colu
     # Without the crossing check they are carried nearly as far as the right ones; with it, a wrong piece
     # passes only where its crossings, triangulated on the wrong light sheet, happen to land within 1
     # projector px of a line of the other family (a quarter or less of them on this rig; measured: 24, 17,
-    # 10 and 0 wrong samples against 96, 130, 1533 and 1533 without the check).
+    # 10 and 0 wrong samples against 96, 130, 1528 and 1528 without the check).
     s, model, obs, labels, inside = dense_hole
     family = column + 1
     shifted = labels.copy()
