@@ -25,7 +25,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from reconstruction import _label_kernels as _k
-from reconstruction import _mixing_kernels as _mk
 from reconstruction.continuation import continue_lines, crossing_gap_px, project_nearest_line
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import depth_cam, epipolar_lines, paper_epipolar_mb
@@ -508,9 +507,6 @@ class TraceOptions:
         The reach is at least a crossing's gap (`continuation.crossing_gap_px`: mixing zone and trims on
         both sides, at crossings down to continue_gap_deg in the image; 0: the junction-step share only),
         and the facing ends' tangents must meet at the gap's middle within continue_lateral_px (decision 0072).
-    mix_bias_px: release a mixing-zone sample whose predicted pull by the other line (first order, from
-        its distance s to that line and the crossing angle, `_mixing_kernels`) is at most this many camera
-        px and that lies at least mix_min_sigma·σ from the other line (decision 0073); 0: the disc alone.
     """
 
     mix_sigma: float = 2.0
@@ -536,8 +532,6 @@ class TraceOptions:
     continue_lateral_px: float = 1.0
     continue_tol_px: float = 1.0
     continue_gap_deg: float = 45.0
-    mix_bias_px: float = 0.0
-    mix_min_sigma: float = 1.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -779,13 +773,6 @@ def label_samples(
     rad = max(1, int(round(options.mix_sigma * sigma_px / cell)))
     dr, dc = np.nonzero(cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rad + 1, 2 * rad + 1)))
     near_other = _k.mixing_zone(r, c, fam, valid, H, W, (dr - rad).astype(np.intp), (dc - rad).astype(np.intp))
-    if options.mix_bias_px > 0:
-        # the zone shaped by the crossing: keep samples the other line pulls by less than mix_bias_px (decision 0073)
-        w_cam = float(line_width_px) if line_width_px else 0.0
-        stats["mixing_released"] = int(_mk.mixing_bias_release(
-            q, r, c, fam, valid, near_other, H, W, (dr - rad).astype(np.intp), (dc - rad).astype(np.intp),
-            float(np.hypot(sigma_px, w_cam / np.sqrt(12.0))), float(options.mix_min_sigma * sigma_px),
-            float(options.mix_bias_px), 0.5 * cell, 3))
     # 2. Seeds: samples near a labelled junction, on its fitted line of their family.
     lab = np.asarray(junction_labels, np.int64).reshape(-1, 2)
     labelled = np.flatnonzero(lab[:, 0] != UNLABELLED)
