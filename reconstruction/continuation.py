@@ -1,4 +1,4 @@
-"""Carry a line's index across the crossings where no junction was labelled (decision 0066).
+"""Carry a line's index across the crossings where no junction was labelled (decisions 0066, 0072).
 
 Trace pieces end at every crossing: the other line's light pulls the ridge there (the mixing zone), so
 `labelling.label_samples` cuts it out. A piece is labelled from a labelled junction on it, from crossings
@@ -9,10 +9,13 @@ unlabelled although each of their lines is labelled a few crossings away.
 Here the pieces that continue one another across a crossing's gap are chained:
 
 1. **Links.** Two ends of pieces of one family, at most `reach_px` apart, facing each other (directions
-   within 12°), each within `lateral_px` of the other's line (the depth-continuity test of the traces:
-   along one light sheet the depth is a function of the image position across the line, so a line that
-   continues on another surface jumps sideways), with a sample of the other family near the middle of the
-   gap (a crossing, not a silhouette or a shadow: gaps without a crossing are not bridged).
+   within 12°), whose tangent lines extrapolated to the middle of the gap meet there within `lateral_px`
+   (the depth-continuity test of the traces: along one light sheet the depth is a function of the image
+   position across the line, so a line that continues on another surface jumps sideways; at the middle a
+   smoothly bending line's two tangents agree whatever the gap's length, decision 0072), with a sample of
+   the other family near the middle of the gap (a crossing, not a silhouette or a shadow: gaps without a
+   crossing are not bridged). `label_samples` makes the reach at least a crossing's gap
+   (`crossing_gap_px`), which does not shrink with the junction step on foreshortened surfaces.
 2. **Check.** A chain of linked pieces is one line, so an unlabelled piece linked to labelled pieces of
    index k can only be line k. That is checked against the physics, without any label of the other
    family: at each end of the piece, the crossing with the nearest line of the other family (the
@@ -26,7 +29,7 @@ Here the pieces that continue one another across a crossing's gap are chained:
 
 The gap samples between newly labelled pieces are filled afterwards by `label_samples` (fill_gaps).
 
-Speed (decision 0067): the ends, the links, the crossing-in-the-gap test and the crossings of the check
+Speed (decision 0067): the ends, the links (`_link_kernels.facing_links_mid`), the crossing-in-the-gap test and the crossings of the check
 (both on the frame's bucket grid of samples that `label_samples` builds), the chains (a union–find) and
 the writes are compiled (`reconstruction._continuation_kernels`, `_label_kernels`); the check's light
 sheets and projections go through `RigModel`.
@@ -36,8 +39,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from reconstruction._continuation_kernels import chain_values, crossing_in_gap, facing_links, piece_ends, samples_of, write_pieces
+from reconstruction._continuation_kernels import chain_values, crossing_in_gap, piece_ends, samples_of, write_pieces
 from reconstruction._label_kernels import crossing_hits_traces, sample_grid
+from reconstruction._link_kernels import facing_links_mid
 from reconstruction._label_kernels import project_nearest_line as project_nearest_line_kernel
 from reconstruction.geometry import depth_cam
 from reconstruction.rigmodel import RigModel
@@ -46,6 +50,14 @@ from reconstruction.rigmodel import RigModel
 FACING_DEG = 12.0
 #: a crossing's two tangents must differ by at least this to be intersected
 MIN_CROSSING_DEG = 20.0
+
+
+def crossing_gap_px(sigma_px: float, *, mix_sigma: float, trim_sigma: float, min_angle_deg: float) -> float:
+    """The longest gap a crossing leaves in a trace (camera px, decision 0072): the mixing zone (mix_sigma·σ
+    from the other line's samples) and the trimmed ends (trim_sigma·σ) on both sides, measured along a line
+    that crosses the other at min_angle_deg. It depends on the smoothing and the crossing angle, not on the
+    grid's pitch: on a foreshortened surface the junction step shrinks, the gap does not."""
+    return 2.0 * (mix_sigma + trim_sigma) * sigma_px / np.sin(np.deg2rad(min_angle_deg))
 
 
 def nearest_line(model: RigModel, family: np.ndarray, uv_proj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -110,6 +122,7 @@ def continue_lines(
     anchor: int = 3,
     trim_px: float = 0.0,
     grid: tuple | None = None,
+    check_radius_px: float | None = None,
 ) -> dict:
     """Label unlabelled trace pieces that continue a labelled piece's line across crossings (module doc).
 
@@ -119,8 +132,10 @@ def continue_lines(
     along the piece (px), tangent (n, 2) unit directions. The samples within trim_px of a continued piece's
     ends are left out (the crossing's light pulls the ridge there; the gap filling puts them on the line). index (P,) float (NaN: unlabelled) and seed_jid (P,) int are written in place for the
     newly labelled samples (seed_jid: that of the labelled piece the index came from). grid: the frame's
-    bucket grid of the valid samples (`labelling._sample_grid`, cells at least reach_px wide; built here
-    when not given).
+    bucket grid of the valid samples (`labelling._sample_grid`, cells at least check_radius_px wide; built
+    here when not given). check_radius_px: how far from a piece's end the check looks for the crossing
+    (default reach_px; `label_samples` keeps the junction-step share there, so that a longer reach does not
+    widen the frame's shared grid, decision 0072).
     Returns counts.
     """
     stats = {"links": 0, "pieces_checked": 0, "pieces_failed": 0, "samples": 0}
@@ -133,12 +148,13 @@ def continue_lines(
     f_e = fam[sid[end_pos]].astype(np.int64)
 
     # 1. links between facing ends across a crossing's gap
-    a, b, gap, i, j = facing_links(e, u, f_e, n_p, labelled, float(reach_px), float(lateral_px), float(np.cos(np.deg2rad(FACING_DEG))))
+    a, b, gap, i, j = facing_links_mid(e, u, f_e, n_p, labelled, float(reach_px), float(lateral_px), float(np.cos(np.deg2rad(FACING_DEG))))
     if len(a) == 0:
         return stats
+    radius = float(reach_px if check_radius_px is None else check_radius_px)
     if grid is None:
-        x0, y0, gw, gh, start, items, pos_of = sample_grid(q, valid, sid, float(reach_px))
-        grid = (float(x0), float(y0), float(reach_px), int(gw), int(gh), start, items, pos_of)
+        x0, y0, gw, gh, start, items, pos_of = sample_grid(q, valid, sid, radius)
+        grid = (float(x0), float(y0), radius, int(gw), int(gh), start, items, pos_of)
     crossing = crossing_in_gap(q, fam, e, f_e, i, j, gap, *grid[:7])
     a, b = a[crossing], b[crossing]
     stats["links"] = int(len(a))
@@ -154,7 +170,7 @@ def continue_lines(
     stats["pieces_checked"] = int(len(cand))
     if len(cand) == 0:
         return stats
-    good = _check_pieces(cand, k_of, q, fam, sid, piece, tangent, e, u, f_e, model, depth_range_mm, reach_px, tol_px, grid)
+    good = _check_pieces(cand, k_of, q, fam, sid, piece, tangent, e, u, f_e, model, depth_range_mm, radius, tol_px, grid)
     stats["pieces_failed"] = int((~good).sum())
     # 3. spread through the checked pieces only
     keep = labelled.copy()

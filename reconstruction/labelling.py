@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from reconstruction import _label_kernels as _k
-from reconstruction.continuation import continue_lines, project_nearest_line
+from reconstruction.continuation import continue_lines, crossing_gap_px, project_nearest_line
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import depth_cam, epipolar_lines, paper_epipolar_mb
 from reconstruction.rigmodel import UNLABELLED, RigModel
@@ -504,6 +504,9 @@ class TraceOptions:
         longest gap, in junction steps; continue_lateral_px: the facing ends' largest sideways offset
         (camera px, per sampling step); continue_tol_px: the crossings at a continued piece's ends,
         triangulated on its light sheet, must lie this close to a line of the other family (projector px).
+        The reach is at least a crossing's gap (`continuation.crossing_gap_px`: mixing zone and trims on
+        both sides, at crossings down to continue_gap_deg in the image; 0: the junction-step share only),
+        and the facing ends' tangents must meet at the gap's middle within continue_lateral_px (decision 0072).
     """
 
     mix_sigma: float = 2.0
@@ -527,7 +530,8 @@ class TraceOptions:
     continue_lines: bool = True
     continue_reach: float = 0.6
     continue_lateral_px: float = 1.0
-    continue_tol_px: float = 1.5
+    continue_tol_px: float = 1.0
+    continue_gap_deg: float = 45.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -804,6 +808,11 @@ def label_samples(
         stats["traces_conflicting"] = int(n_conflicting)
         grid = None
         if model is not None and (options.cross_pieces or options.continue_lines):
+            # the continuation's reach: a share of the junction step, and at least a crossing's gap (decision 0072)
+            reach_cont = options.continue_reach * model.junction_step_cam_px
+            if options.continue_gap_deg > 0:
+                reach_cont = max(reach_cont, cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
+                                                                     min_angle_deg=options.continue_gap_deg))
             grid = _sample_grid(q, valid, sid, model.junction_step_cam_px * max(options.cross_radius, options.continue_reach))
         if options.cross_pieces and model is not None:
             stats["samples_from_crossings"] = _crossing_seeds(
@@ -811,7 +820,7 @@ def label_samples(
                 options.cross_radius * model.junction_step_cam_px, options.cross_trim_sigma * sigma_px, options, grid)
         if options.continue_lines and model is not None:
             cont = continue_lines(q, fam, sid, piece, ts, tangent, index, seed_jid, valid, model=model, depth_range_mm=depth_range_mm,
-                                  reach_px=options.continue_reach * model.junction_step_cam_px,
+                                  reach_px=reach_cont, check_radius_px=options.continue_reach * model.junction_step_cam_px,
                                   lateral_px=options.continue_lateral_px * cell, tol_px=options.continue_tol_px,
                                   anchor=options.fill_anchor, trim_px=options.cross_trim_sigma * sigma_px, grid=grid)
             stats["samples_continued"] = cont["samples"]

@@ -1,0 +1,113 @@
+"""Compiled links between trace pieces across a crossing's gap (decision 0072; numba, one thread, 0062).
+
+`facing_links_mid` replaces the per-end lateral test of `_continuation_kernels.facing_links` by a test at
+the gap's middle: both ends' tangent lines, extrapolated over half the gap, must meet there within
+`lateral`. A line that bends smoothly (a curved surface) passes whatever the gap's length: by symmetry the
+two extrapolations meet at the arc's apex, their first-order deviations cancel. A line that continues on
+another surface, or a neighbouring line, is offset sideways by δ on the far side and the two points are δ
+apart, as in the per-end test.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from reconstruction._jit import njit
+
+
+@njit
+def facing_links_mid(e, u, f_e, n_p, labelled, reach, lateral, cos_facing):
+    """Pairs of piece ends (a, b piece ids, gap length, end ids i < j) of one family, on different pieces not
+    both labelled, closer than reach, facing each other (directions more opposite than cos_facing), each
+    end beyond the other, whose tangent lines extrapolated to the middle of the gap (e + g/2 · u) are
+    within `lateral` of each other. e (2n_p, 2) end positions, u (2n_p, 2) outward unit directions, f_e
+    (2n_p,) families (rows as `_continuation_kernels.piece_ends`). Ends are bucketed per family in cells
+    `reach` wide; every pair of a cell and its forward neighbours is looked at once."""
+    m = e.shape[0]
+    out_a = np.empty(8 * m, np.intp)
+    out_b = np.empty(8 * m, np.intp)
+    out_g = np.empty(8 * m)
+    out_i = np.empty(8 * m, np.intp)
+    out_j = np.empty(8 * m, np.intp)
+    nl = 0
+    if m == 0:
+        return out_a[:0], out_b[:0], out_g[:0], out_i[:0], out_j[:0]
+    x0 = e[:, 0].min()
+    y0 = e[:, 1].min()
+    cell = reach
+    gw = int((e[:, 0].max() - x0) / cell) + 1
+    gh = int((e[:, 1].max() - y0) / cell) + 1
+    ng = gw * gh
+    key = np.empty(m, np.intp)
+    start = np.zeros(2 * ng + 1, np.intp)
+    for k in range(m):
+        cx = min(max(int(math.floor((e[k, 0] - x0) / cell)), 0), gw - 1)
+        cy = min(max(int(math.floor((e[k, 1] - y0) / cell)), 0), gh - 1)
+        key[k] = (f_e[k] - 1) * ng + cy * gw + cx if f_e[k] == 1 or f_e[k] == 2 else -1
+        if key[k] >= 0:
+            start[key[k] + 1] += 1
+    for k in range(2 * ng):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    items = np.empty(m, np.intp)
+    for k in range(m):
+        if key[k] >= 0:
+            items[fill[key[k]]] = k
+            fill[key[k]] += 1
+    r2 = reach * reach
+    lat2 = lateral * lateral
+    for f in range(2):
+        base = f * ng
+        for cy in range(gh):
+            for cx in range(gw):
+                bk = base + cy * gw + cx
+                for s in range(start[bk], start[bk + 1]):
+                    i0 = items[s]
+                    for nb in range(5):
+                        if nb == 0:
+                            xx, yy = cx, cy
+                        elif nb == 1:
+                            xx, yy = cx + 1, cy
+                        elif nb == 2:
+                            xx, yy = cx - 1, cy + 1
+                        elif nb == 3:
+                            xx, yy = cx, cy + 1
+                        else:
+                            xx, yy = cx + 1, cy + 1
+                        if xx < 0 or xx >= gw or yy >= gh:
+                            continue
+                        bn = base + yy * gw + xx
+                        t0 = s + 1 if nb == 0 else start[bn]
+                        for t in range(t0, start[bn + 1]):
+                            j0 = items[t]
+                            i = min(i0, j0)
+                            j = max(i0, j0)
+                            v0 = e[j, 0] - e[i, 0]
+                            v1 = e[j, 1] - e[i, 1]
+                            g2 = v0 * v0 + v1 * v1
+                            if g2 >= r2:
+                                continue
+                            pi = i - n_p if i >= n_p else i
+                            pj = j - n_p if j >= n_p else j
+                            if pi == pj or (labelled[pi] and labelled[pj]):
+                                continue
+                            if u[i, 0] * u[j, 0] + u[i, 1] * u[j, 1] >= -cos_facing:
+                                continue
+                            if v0 * u[i, 0] + v1 * u[i, 1] <= 0 or v0 * u[j, 0] + v1 * u[j, 1] >= 0:
+                                continue
+                            h = 0.5 * math.sqrt(g2)
+                            d0 = (e[i, 0] + h * u[i, 0]) - (e[j, 0] + h * u[j, 0])
+                            d1 = (e[i, 1] + h * u[i, 1]) - (e[j, 1] + h * u[j, 1])
+                            if d0 * d0 + d1 * d1 > lat2:
+                                continue
+                            if nl == out_a.shape[0]:
+                                break
+                            out_a[nl] = pi
+                            out_b[nl] = pj
+                            out_g[nl] = math.sqrt(g2)
+                            out_i[nl] = i
+                            out_j[nl] = j
+                            nl += 1
+    return out_a[:nl], out_b[:nl], out_g[:nl], out_i[:nl], out_j[:nl]
