@@ -397,13 +397,15 @@ def ring_counts(near, dist, fam, r0, ns):
 
 
 @njit
-def remap_near(near, dist, remap):
-    """In place: near[i] -> remap[near[i]] (−1 stays −1); dist[i] = inf where the result is −1."""
+def crossing_cores(near, dist, remap, r0):
+    """(P,) bool: samples whose candidate `near` (−1: none) is kept (remap[near] ≥ 0) and within r0
+    (float32) of it: the crossings' cores."""
+    core = np.zeros(len(near), np.bool_)
     for i in range(len(near)):
-        if near[i] >= 0:
-            near[i] = remap[near[i]]
-        if near[i] < 0:
-            dist[i] = np.inf
+        k = near[i]
+        if k >= 0 and remap[k] >= 0:
+            core[i] = dist[i] <= r0
+    return core
 
 
 @njit

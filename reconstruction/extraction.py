@@ -327,8 +327,6 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     if options.debug:
         stats["debug_raw_candidates"] = seeds * scale
     # samples near each candidate; a candidate is a crossing only where both families come close
-    near = np.full(P, -1, np.intp)
-    dist = np.full(P, np.inf, np.float32)
     if len(seeds) and P:
         near, dist = look_dist(seed_grid, qx32, qy32, seeds, r_att)
         n_ring = _k.ring_counts(near, dist, fam, np.float32(r0), len(seeds))
@@ -339,11 +337,11 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         remap_seed = np.full(len(seeds), -1, np.int64)
         remap_seed[np.nonzero(crossing)[0]] = np.arange(int(crossing.sum()))
         seeds, seed_score = seeds[crossing], seed_score[crossing]
-        _k.remap_near(near, dist, remap_seed)
+        core = _k.crossing_cores(near, dist, remap_seed, np.float32(r0))  # samples within r0 of a kept one
     else:
         remap_seed = np.arange(len(seeds))
+        core = np.zeros(P, bool)
     ns = len(seeds)
-    core = dist <= np.float32(r0)
     seeds_x, seeds_y = seeds[:, 0].copy(), seeds[:, 1].copy()
     seeds_x32, seeds_y32 = seeds_x.astype(np.float32), seeds_y.astype(np.float32)
 

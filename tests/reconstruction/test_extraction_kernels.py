@@ -202,3 +202,18 @@ def test_junction_sample_ids_bias_cut_and_edge_skips_match_numpy():
     want = (elen > 1.6 * shortest[a_j, f_]) | (elen > 1.6 * shortest[b_j, f_])
     assert 0 < want.sum() < E
     np.testing.assert_array_equal(k.edge_skips(a_j, b_j, f_, elen, M), want)
+
+
+def test_crossing_cores_are_the_samples_near_a_kept_candidate():
+    rng = np.random.default_rng(8)
+    P, ns, r0 = 2000, 50, np.float32(2.5)
+    near = np.where(rng.random(P) < 0.6, rng.integers(0, ns, P), -1).astype(np.int64)
+    dist = np.where(near >= 0, rng.uniform(0, 6, P), np.inf).astype(np.float32)
+    kept = rng.random(ns) < 0.5
+    remap = np.full(ns, -1, np.int64)
+    remap[kept] = np.arange(int(kept.sum()))
+    # the NumPy steps this replaced: remap the ids, distance inf where none is left, then the threshold
+    new_near = np.where(near >= 0, remap[np.maximum(near, 0)], -1)
+    want = np.where(new_near >= 0, dist, np.inf) <= r0
+    assert 100 < want.sum() < (near >= 0).sum()
+    np.testing.assert_array_equal(k.crossing_cores(near, dist, remap, r0), want)
