@@ -5,6 +5,7 @@ libm, OpenCV and brute force, to the bit."""
 from __future__ import annotations
 
 import math
+import platform
 
 import cv2
 import numba
@@ -12,6 +13,31 @@ import numpy as np
 import pytest
 
 from reconstruction import _label_kernels as K
+
+
+def _replica_is_libm() -> bool:
+    """Whether `_label_kernels._hypot` replicates this machine's libm hypot to the bit: it copies glibc's
+    algorithm as glibc >= 2.35 builds it for x86-64 (decision 0070). Elsewhere (macOS, musl, an older glibc,
+    another CPU) libm may round the last bit differently, which changes no decision of the kernels."""
+    lib, version = platform.libc_ver()
+    if platform.system() != "Linux" or platform.machine().lower() not in ("x86_64", "amd64") or lib != "glibc":
+        return False
+    try:
+        major, minor = (int(v) for v in version.split(".")[:2])
+    except ValueError:
+        return False
+    return (major, minor) >= (2, 35)
+
+
+REPLICA_EXACT = _replica_is_libm()
+
+
+def _assert_within_ulp(got, want, maxulp):
+    """Equal where either is NaN or infinite, else at most maxulp units in the last place apart."""
+    got, want = np.asarray(got, np.float64), np.asarray(want, np.float64)
+    odd = ~np.isfinite(want) | ~np.isfinite(got)
+    np.testing.assert_array_equal(got[odd], want[odd])
+    np.testing.assert_array_max_ulp(got[~odd], want[~odd], maxulp=maxulp)
 
 
 @numba.njit
@@ -42,7 +68,11 @@ def test_hypot_equals_libm_to_the_bit():
     sx, sy = np.meshgrid(special, special)
     x = np.concatenate(xs + [sx.ravel()])
     y = np.concatenate(ys + [sy.ravel()])
-    np.testing.assert_array_equal(_inlined_hypot(x, y), _libm_hypot(x, y))  # NaN where NaN, else equal bits
+    got, want = _inlined_hypot(x, y), _libm_hypot(x, y)
+    if REPLICA_EXACT:
+        np.testing.assert_array_equal(got, want)  # NaN where NaN, else equal bits
+    else:
+        _assert_within_ulp(got, want, 1)  # another libm may round the last bit differently
 
 
 @pytest.mark.parametrize("rad", [1, 2, 3, 5])
@@ -320,7 +350,10 @@ def test_traces_equal_the_round2_kernel(seed):
     got = K.traces_of(q, fam, r, c, sel, int(H), int(W), *args)
     want = _traces_round2(q[sel], fam[sel], r[sel], c[sel], int(H), int(W), *args[:4], ridge[sel], *args[5:])
     for g, w in zip(got, want):
-        np.testing.assert_array_equal(g, w)
+        if REPLICA_EXACT or g.dtype.kind != "f":
+            np.testing.assert_array_equal(g, w)
+        else:  # positions and tangents go through hypot: another libm may differ in the last bits
+            np.testing.assert_allclose(g, w, rtol=1e-12, atol=1e-12)
     assert got[1][-1] > 30  # many pieces: links and cuts both occur
 
 
