@@ -24,7 +24,8 @@ def facing_links_mid(e, u, f_e, n_p, labelled, reach, lateral, cos_facing):
     end beyond the other, whose tangent lines extrapolated to the middle of the gap (e + g/2 · u) are
     within `lateral` of each other. e (2n_p, 2) end positions, u (2n_p, 2) outward unit directions, f_e
     (2n_p,) families (rows as `_continuation_kernels.piece_ends`). Ends are bucketed per family in cells
-    `reach` wide; every pair of a cell and its forward neighbours is looked at once."""
+    `reach` wide; every pair of a cell and its forward neighbours is looked at once, a pair of two labelled
+    pieces' ends (most pairs) skipped before any arithmetic."""
     m = e.shape[0]
     out_a = np.empty(8 * m, np.intp)
     out_b = np.empty(8 * m, np.intp)
@@ -65,6 +66,10 @@ def facing_links_mid(e, u, f_e, n_p, labelled, reach, lateral, cos_facing):
                 bk = base + cy * gw + cx
                 for s in range(start[bk], start[bk + 1]):
                     i0 = items[s]
+                    p0 = i0 - n_p if i0 >= n_p else i0
+                    lab0 = labelled[p0]
+                    ex = e[i0, 0]
+                    ey = e[i0, 1]
                     for nb in range(5):
                         if nb == 0:
                             xx, yy = cx, cy
@@ -82,17 +87,19 @@ def facing_links_mid(e, u, f_e, n_p, labelled, reach, lateral, cos_facing):
                         t0 = s + 1 if nb == 0 else start[bn]
                         for t in range(t0, start[bn + 1]):
                             j0 = items[t]
-                            i = min(i0, j0)
-                            j = max(i0, j0)
-                            v0 = e[j, 0] - e[i, 0]
-                            v1 = e[j, 1] - e[i, 1]
-                            g2 = v0 * v0 + v1 * v1
+                            p1 = j0 - n_p if j0 >= n_p else j0
+                            if p0 == p1 or (lab0 and labelled[p1]):
+                                continue
+                            # the gap vector from the lower end id to the higher (negation is exact)
+                            w0 = e[j0, 0] - ex
+                            w1 = e[j0, 1] - ey
+                            g2 = w0 * w0 + w1 * w1
                             if g2 >= r2:
                                 continue
-                            pi = i - n_p if i >= n_p else i
-                            pj = j - n_p if j >= n_p else j
-                            if pi == pj or (labelled[pi] and labelled[pj]):
-                                continue
+                            if i0 < j0:
+                                i, j, pi, pj, v0, v1 = i0, j0, p0, p1, w0, w1
+                            else:
+                                i, j, pi, pj, v0, v1 = j0, i0, p1, p0, -w0, -w1
                             if u[i, 0] * u[j, 0] + u[i, 1] * u[j, 1] >= -cos_facing:
                                 continue
                             if v0 * u[i, 0] + v1 * u[i, 1] <= 0 or v0 * u[j, 0] + v1 * u[j, 1] >= 0:

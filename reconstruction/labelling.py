@@ -185,7 +185,7 @@ def _choose_offset(
                                      int(model.index_max), model.procam.R_proj_cam, model.procam.t_proj_cam)
         z = depth_cam(model.procam, p).reshape(k1 - k0, m)
         inside_c = (z >= options.depth_min_mm) & (z <= options.depth_max_mm) & in_pat
-        ok_c = inside_c.mean(axis=1) >= options.min_inside_fraction
+        ok_c = np.count_nonzero(inside_c, axis=1) / inside_c.shape[1] >= options.min_inside_fraction  # the mean, exactly
         for k in range(k1 - k0):
             if ok_c[k]:
                 passing.append((int(top[k0 + k]), inside_c[k]))
@@ -285,9 +285,12 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             left["out_of_depth_range"] += int((bad & ~ch.inside).sum())
             continue
         stats["components_split"] += 1
-        sel = np.isin(edges[:, 0], outl) & np.isin(edges[:, 1], outl)
+        # edges between two outliers, renumbered by the outliers' sorted order (a lookup table, not np.isin)
         srt = np.sort(outl)
-        sub_e = np.searchsorted(srt, edges[sel]).reshape(-1, 2)
+        pos_of = np.full(M, -1, np.intp)
+        pos_of[srt] = np.arange(len(srt))
+        sel = (pos_of[edges[:, 0]] >= 0) & (pos_of[edges[:, 1]] >= 0)
+        sub_e = pos_of[edges[sel]].reshape(-1, 2)
         outl = srt
         sub_rel, sub_comp = _propagate(len(outl), sub_e, delta[sel])
         rel[outl] = sub_rel
@@ -788,7 +791,7 @@ def label_samples(
             stats["snapped_to_junction_line"] = int(n_snap)
     kept = valid & ~near_other
     stats["mixing_zone"] = int((valid & near_other).sum()) - stats["snapped_to_junction_line"]
-    stats["seeds"] = int((seed[kept] != UNLABELLED).sum())
+    stats["seeds"] = int(np.count_nonzero((seed != UNLABELLED) & kept))
     # 3. Trace pieces and the nearest seed along each.
     ridge = None
     blurred = _box3(image) if image is not None else None
