@@ -532,6 +532,7 @@ class TraceOptions:
     continue_lateral_px: float = 1.0
     continue_tol_px: float = 1.0
     continue_gap_deg: float = 45.0
+    cross_rounds_after: int = 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -608,7 +609,8 @@ def _nearest_within(q: np.ndarray, pts: np.ndarray, radius: float) -> tuple[np.n
 
 
 def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model: RigModel, depth_range_mm,
-                    radius_px: float, trim_px: float, options: TraceOptions, grid: tuple | None = None) -> int:
+                    radius_px: float, trim_px: float, options: TraceOptions, grid: tuple | None = None,
+                    rounds: int | None = None) -> int:
     """Label unseeded trace pieces from the crossings at their ends (TraceOptions.cross_pieces).
 
     Every piece ends at a crossing's gap (the mixing zone is cut out of the traces). Where a labelled
@@ -619,7 +621,7 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
     range. A piece is labelled only if both its ends give the same k (`cross_both_ends`). Repeated
     `cross_rounds` times, newly labelled pieces serving as the next round's neighbours. Writes index and
     seed_jid (sample ids, in place); returns the number of samples labelled. grid: `_sample_grid` with
-    cells at least radius_px wide (built here when not given).
+    cells at least radius_px wide (built here when not given). rounds: instead of options.cross_rounds.
     """
     n_pieces = int(piece[-1]) + 1 if len(piece) else 0
     if n_pieces == 0:
@@ -627,7 +629,7 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
     if grid is None:
         grid = _sample_grid(q, (fam == 1) | (fam == 2), sid, radius_px)
     total = 0
-    for _ in range(options.cross_rounds):
+    for _ in range(options.cross_rounds if rounds is None else rounds):
         todo, e, te, sign, fe, first, last = _k.cross_round_ends(q, sid, piece, tangent, fam, index, n_pieces,
                                                                 int(options.cross_min_samples))
         nt = len(todo)
@@ -825,6 +827,13 @@ def label_samples(
                                   anchor=options.fill_anchor, trim_px=options.cross_trim_sigma * sigma_px, grid=grid)
             stats["samples_continued"] = cont["samples"]
             stats["pieces_continuation_failed"] = cont["pieces_failed"]
+            if options.cross_pieces and options.cross_rounds_after and cont["samples"]:
+                # the continued pieces are labelled neighbours too: the crossings with them label the
+                # pieces across (decision 0074), with the same check
+                stats["samples_from_crossings_after"] = _crossing_seeds(
+                    q, fam, sid, piece, ts, tangent, index, seed_jid, model, depth_range_mm,
+                    options.cross_radius * model.junction_step_cam_px, options.cross_trim_sigma * sigma_px,
+                    options, grid, rounds=options.cross_rounds_after)
         if (options.cross_pieces or options.continue_lines) and model is not None:
             got = np.isfinite(index[sid])
         stats["samples_unseeded"] = int((~got).sum())
