@@ -507,6 +507,8 @@ class TraceOptions:
         The reach is at least a crossing's gap (`continuation.crossing_gap_px`: mixing zone and trims on
         both sides, at crossings down to continue_gap_deg in the image; 0: the junction-step share only),
         and the facing ends' tangents must meet at the gap's middle within continue_lateral_px (decision 0072).
+    cross_rounds_after: rounds of the crossing pieces after the continuation (continued pieces are labelled
+        neighbours too; the same check, decision 0074); 0: none.
     """
 
     mix_sigma: float = 2.0
@@ -744,7 +746,8 @@ def label_samples(
     junction_labels (M, 2) int, UNLABELLED where none. sigma_px: the extraction's smoothing scale.
     seed_radius_px: how far from a junction its seeds may lie (camera px). model, depth_range_mm: for
     the crossing pieces (`cross_pieces`, skipped without a model). image, line_width_px: for the cut-profile test
-    (`max_profile_drop`, skipped without them).
+    (`max_profile_drop`, skipped without them). Order: seeds and traces, crossing pieces, continuation,
+    one more crossing round (`cross_rounds_after`), cut profiles, gap filling.
 
     Speed: the per-sample steps (valid samples and their cells, mixing zone, seeds, trace linking and
     cutting, the nearest seed, the crossing search at piece ends, the continuation, gap candidates and
