@@ -510,6 +510,8 @@ class TraceOptions:
         The reach is at least a crossing's gap (`continuation.crossing_gap_px`: mixing zone and trims on
         both sides, at crossings down to continue_gap_deg in the image; 0: the junction-step share only),
         and the facing ends' tangents must meet at the gap's middle within continue_lateral_px (decision 0072).
+    cross_rounds_after: rounds of the crossing pieces after the continuation (continued pieces are labelled
+        neighbours too; the same check, decision 0074); 0: none.
     """
 
     mix_sigma: float = 2.0
@@ -535,6 +537,7 @@ class TraceOptions:
     continue_lateral_px: float = 1.0
     continue_tol_px: float = 1.0
     continue_gap_deg: float = 45.0
+    cross_rounds_after: int = 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -611,7 +614,8 @@ def _nearest_within(q: np.ndarray, pts: np.ndarray, radius: float) -> tuple[np.n
 
 
 def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model: RigModel, depth_range_mm,
-                    radius_px: float, trim_px: float, options: TraceOptions, grid: tuple | None = None) -> int:
+                    radius_px: float, trim_px: float, options: TraceOptions, grid: tuple | None = None,
+                    rounds: int | None = None) -> int:
     """Label unseeded trace pieces from the crossings at their ends (TraceOptions.cross_pieces).
 
     Every piece ends at a crossing's gap (the mixing zone is cut out of the traces). Where a labelled
@@ -622,7 +626,7 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
     range. A piece is labelled only if both its ends give the same k (`cross_both_ends`). Repeated
     `cross_rounds` times, newly labelled pieces serving as the next round's neighbours. Writes index and
     seed_jid (sample ids, in place); returns the number of samples labelled. grid: `_sample_grid` with
-    cells at least radius_px wide (built here when not given).
+    cells at least radius_px wide (built here when not given). rounds: instead of options.cross_rounds.
     """
     n_pieces = int(piece[-1]) + 1 if len(piece) else 0
     if n_pieces == 0:
@@ -630,7 +634,7 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
     if grid is None:
         grid = _sample_grid(q, (fam == 1) | (fam == 2), sid, radius_px)
     total = 0
-    for _ in range(options.cross_rounds):
+    for _ in range(options.cross_rounds if rounds is None else rounds):
         todo, e, te, sign, fe, first, last = _k.cross_round_ends(q, sid, piece, tangent, fam, index, n_pieces,
                                                                 int(options.cross_min_samples))
         nt = len(todo)
@@ -745,7 +749,8 @@ def label_samples(
     junction_labels (M, 2) int, UNLABELLED where none. sigma_px: the extraction's smoothing scale.
     seed_radius_px: how far from a junction its seeds may lie (camera px). model, depth_range_mm: for
     the crossing pieces (`cross_pieces`, skipped without a model). image, line_width_px: for the cut-profile test
-    (`max_profile_drop`, skipped without them).
+    (`max_profile_drop`, skipped without them). Order: seeds and traces, crossing pieces, continuation,
+    one more crossing round (`cross_rounds_after`), cut profiles, gap filling.
 
     Speed: the per-sample steps (valid samples and their cells, mixing zone, seeds, trace linking and
     cutting, the nearest seed, the crossing search at piece ends, the continuation, gap candidates and
@@ -828,6 +833,13 @@ def label_samples(
                                   anchor=options.fill_anchor, trim_px=options.cross_trim_sigma * sigma_px, grid=grid)
             stats["samples_continued"] = cont["samples"]
             stats["pieces_continuation_failed"] = cont["pieces_failed"]
+            if options.cross_pieces and options.cross_rounds_after and cont["samples"]:
+                # the continued pieces are labelled neighbours too: the crossings with them label the
+                # pieces across (decision 0074), with the same check
+                stats["samples_from_crossings_after"] = _crossing_seeds(
+                    q, fam, sid, piece, ts, tangent, index, seed_jid, model, depth_range_mm,
+                    options.cross_radius * model.junction_step_cam_px, options.cross_trim_sigma * sigma_px,
+                    options, grid, rounds=options.cross_rounds_after)
         if (options.cross_pieces or options.continue_lines) and model is not None:
             got = np.isfinite(index[sid])
         stats["samples_unseeded"] = int((~got).sum())

@@ -79,8 +79,11 @@ def test_a_wrong_index_fails_the_crossing_check_at_the_pieces_ends(hole):
     shifted[ok, 0] += 1
 
     def continued(lab, f, **trace):
+        # the continuation alone: the crossing round after it (decision 0074) labels i-line pieces from the
+        # right j-lines with their own, true index (45 samples here, all right), which this count would take
+        # for continued wrong ones
         base = _samples(s, model, obs, lab, continue_lines=False)
-        res = _samples(s, model, obs, lab, **trace)
+        res = _samples(s, model, obs, lab, cross_rounds_after=0, **trace)
         return int((np.isfinite(res.index) & ~np.isfinite(base.index) & (obs.family == f)).sum())
 
     right_1, right_2 = continued(labels, 1), continued(labels, 2)
