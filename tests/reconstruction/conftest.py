@@ -28,14 +28,25 @@ def small_procam() -> ProCam:
     return ProCam(cam, prj, look_at(t, np.array([0, 0, 800.0])), t)
 
 
-@pytest.fixture(scope="session")
-def small_scene() -> SmallScene:
+def _render_small(pattern: GridPattern) -> SmallScene:
+    """The small rig's tilted plane and sphere shown `pattern`, noise 2 grey levels, seeded."""
     from drivers.sim import Plane, RenderOptions, Scene, Sphere, render
 
     procam = small_procam()
     scene = Scene(objects=[Plane(np.array([0, 0, 900.0]), np.array([0.1, -0.2, -1.0])), Sphere(np.array([30.0, 20.0, 760.0]), 90.0)])
-    pattern = GridPattern(pitch_px=24.0, lines=25, centre_px=(399.5, 299.5), line_width_px=3.0)
     image, truth = render(
         procam, scene, pattern.render(800, 600), options=RenderOptions(noise_grey=2.0, supersample=2), rng=np.random.default_rng(0)
     )
     return SmallScene(procam, pattern, image, truth, (500.0, 1200.0))
+
+
+@pytest.fixture(scope="session")
+def small_scene() -> SmallScene:
+    return _render_small(GridPattern(pitch_px=24.0, lines=25, centre_px=(399.5, 299.5), line_width_px=3.0))
+
+
+@pytest.fixture(scope="session")
+def small_scene_pitch16() -> SmallScene:
+    """The same rig and scene shown a grid of pitch 16: the junction step in the camera (~7 px) is shorter than
+    the gap a crossing leaves in a trace (decisions 0072, 0074)."""
+    return _render_small(GridPattern(pitch_px=16.0, lines=37, centre_px=(399.5, 299.5), line_width_px=3.0))

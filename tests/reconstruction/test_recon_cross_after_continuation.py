@@ -20,19 +20,10 @@ _spec.loader.exec_module(_h)
 
 
 @pytest.fixture(scope="module")
-def dense_hole(small_scene):
+def dense_hole(small_scene_pitch16):
     """The small rig and scene shown a grid of pitch 16 (junction step ~7 camera px, shorter than a crossing's
     gap in a trace), junction labels in a disc of five junction steps taken away."""
-    from drivers.sim import Plane, RenderOptions, Scene, Sphere, render
-
-    from reconstruction.patterns import GridPattern
-
-    procam = small_scene.procam
-    scene = Scene(objects=[Plane(np.array([0, 0, 900.0]), np.array([0.1, -0.2, -1.0])), Sphere(np.array([30.0, 20.0, 760.0]), 90.0)])
-    pattern = GridPattern(pitch_px=16.0, lines=37, centre_px=(399.5, 299.5), line_width_px=3.0)
-    image, truth = render(procam, scene, pattern.render(800, 600), options=RenderOptions(noise_grey=2.0, supersample=2),
-                          rng=np.random.default_rng(0))
-    s = type(small_scene)(procam, pattern, image, truth, small_scene.depth_range_mm)
+    s = small_scene_pitch16
     model, obs, lab = _h._stage(s)
     labels = lab.labels.copy()
     ok = labels[:, 0] != UNLABELLED
