@@ -1,7 +1,8 @@
 """What the benchmark scripts share: truth sampling, scoring against the simulator's truth, the benchmark scenes,
 and the markdown they write. Private (leading underscore): benchmarks/run_all.py does not run it.
 
-- Truth sampling and scores: `sample_bilinear`, `relative_errors`, `coverage_lines`, `covered_share`,
+- Truth sampling and scores: `sample_bilinear`, `relative_errors`, `line_centre_pixels` (the coverage target),
+  `coverage_lines`, `covered_share`,
   `evaluate_grid` / `GridScore` / `pooled` (the definitions that paper.py, sweep.py and modes.py report).
 - Scenes: `converged_1280` (the 1280x1024 rig of bench_extraction and bench_reconstruction), `bench_scenes`
   (simulator presets and `converged-1280` variants as `BenchScene`s), `render_scene` (image plus truth, seeded),
@@ -76,26 +77,56 @@ def relative_errors(points_proj: np.ndarray, q_cam: np.ndarray, truth) -> np.nda
     return np.linalg.norm(p - p_true[ok], axis=1) / np.linalg.norm(p_true[ok], axis=1)
 
 
-def coverage_lines(truth, pattern: GridPattern, q_cam: np.ndarray, *, radius_px: float = 1.5) -> float:
-    """Share of the lit camera pixels on a projected line's centre that have a point within radius_px.
+def projector_px_per_camera_px(q_proj: np.ndarray) -> np.ndarray:
+    """(H, W): the local scale of the truth's projector map q_proj (H, W, 2), projector px per camera px (the
+    larger of the two image axes).
 
-    Works for uniform and De Bruijn spacings: the distance to the nearest line of each family is measured with
-    the pattern's own offsets. A pixel is "on a line's centre" when its true projector position is within half
-    a camera pixel (in projector px) of a line, and the projector lights it.
-    """
+    One-sided differences, the smaller of the two per axis: at a depth edge the pixel's own surface is on one
+    side, and a central difference across the edge would make a silhouette pixel look "near" every line
+    (decision 0075). NaN where neither side is on a surface."""
+    q = np.asarray(q_proj, np.float64)
+    out = None
+    for axis in (0, 1):
+        d = np.linalg.norm(np.diff(q, axis=axis), axis=2)
+        pad_f = [(0, 1), (0, 0)] if axis == 0 else [(0, 0), (0, 1)]
+        pad_b = [(1, 0), (0, 0)] if axis == 0 else [(0, 0), (1, 0)]
+        s = np.fmin(np.pad(d, pad_f, constant_values=np.nan), np.pad(d, pad_b, constant_values=np.nan))
+        out = s if out is None else np.fmax(out, s)
+    return out
+
+
+def line_centre_pixels(truth, pattern: GridPattern) -> np.ndarray:
+    """(H, W) bool: the visible, lit camera pixels on the centre of a drawn line of the pattern (the coverage
+    target).
+
+    A pixel counts when the projector pixel it sees (truth.q_proj) lies within half a camera pixel (in projector
+    px, `projector_px_per_camera_px`) of a line's centre, inside the part of the line the pattern draws (between
+    its first and last crossing, see GridPattern.render), and the projector lights it (truth.lit). Uniform and
+    De Bruijn spacings alike: distances are measured with the pattern's own offsets."""
     q = truth.q_proj.astype(np.float64)
     x = q[..., 0] - pattern.centre_px[0]
     y = q[..., 1] - pattern.centre_px[1]
-    scale = np.maximum(np.linalg.norm(np.gradient(q, axis=1), axis=2), np.linalg.norm(np.gradient(q, axis=0), axis=2))
+    scale = projector_px_per_camera_px(q)
     near = np.zeros(x.shape, bool)
-    for family, n in ((1, pattern.n1), (2, pattern.n2)):
-        off = pattern.offsets_px(family)
-        c = y - n * x
-        k = np.clip(np.searchsorted(off, np.nan_to_num(c)), 1, len(off) - 1)
-        d = np.minimum(np.abs(c - off[k - 1]), np.abs(c - off[k])) / np.hypot(1, n)
-        inside = (c >= off[0] - 0.5) & (c <= off[-1] + 0.5)
-        near |= inside & (d <= 0.5 * scale)
-    return covered_share(near & truth.lit & np.isfinite(scale), q_cam, radius_px=radius_px)
+    half = 0.5 * pattern.line_width_px
+    s = {}
+    for fam, n in ((1, pattern.n1), (2, pattern.n2)):
+        s[fam] = (y - n * x) / np.hypot(1, n)  # distance-like coordinate across family fam (projector px)
+    with np.errstate(invalid="ignore"):
+        for fam, n in ((1, pattern.n1), (2, pattern.n2)):
+            other, n_o = (2, pattern.n2) if fam == 1 else (1, pattern.n1)
+            offs = pattern.offsets_px(fam) / np.hypot(1, n)
+            k = np.clip(np.searchsorted(offs, np.nan_to_num(s[fam])), 1, len(offs) - 1)
+            d = np.minimum(np.abs(s[fam] - offs[k - 1]), np.abs(s[fam] - offs[k]))
+            offs_o = pattern.offsets_px(other) / np.hypot(1, n_o)
+            inside = (s[other] >= offs_o[0] - half) & (s[other] <= offs_o[-1] + half)
+            near |= (d <= 0.5 * scale) & inside
+        return near & truth.lit & np.isfinite(scale)
+
+
+def coverage_lines(truth, pattern: GridPattern, q_cam: np.ndarray, *, radius_px: float = 1.5) -> float:
+    """Share of `line_centre_pixels` that have a point of q_cam within radius_px (the benchmarks' coverage)."""
+    return covered_share(line_centre_pixels(truth, pattern), q_cam, radius_px=radius_px)
 
 
 @dataclass

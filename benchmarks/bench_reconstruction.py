@@ -28,8 +28,8 @@ import time
 import cv2
 import numpy as np
 
-from benchmarks._common import (RESULTS, bench_scenes, converged_1280, covered_share, markdown_table, render_scene,
-                                sample_bilinear, tree_state, write_markdown)
+from benchmarks._common import (RESULTS, bench_scenes, converged_1280, coverage_lines, line_centre_pixels, markdown_table,
+                                render_scene, sample_bilinear, tree_state, write_markdown)
 from reconstruction.patterns import GridPattern
 from reconstruction.pipeline import ReconstructOptions, reconstruct
 from reconstruction.rigmodel import UNLABELLED
@@ -49,39 +49,13 @@ def scenes(quick: bool, noise: float):
 
 
 def line_pixels(truth, pattern: GridPattern) -> np.ndarray:
-    """(H, W) bool: visible, lit camera pixels on the centre of a drawn line of the pattern.
-
-    A pixel counts when the projector pixel it sees (truth.q_proj) lies within half a camera pixel (in
-    projector px, from the truth's own local scale) of a line's centre, and inside the part of the line that
-    the pattern draws (between its first and last crossing, see GridPattern.render), and the projector
-    lights it (truth.lit)."""
-    q = truth.q_proj.astype(np.float64)
-    x = q[..., 0] - pattern.centre_px[0]
-    y = q[..., 1] - pattern.centre_px[1]
-    # projector px per camera px (local), from the truth's own gradient
-    gu = np.linalg.norm(np.gradient(q, axis=1), axis=2)
-    gv = np.linalg.norm(np.gradient(q, axis=0), axis=2)
-    scale = np.maximum(gu, gv)
-    near = np.zeros(x.shape, bool)
-    half = 0.5 * pattern.line_width_px
-    s = {}
-    for fam, n in ((1, pattern.n1), (2, pattern.n2)):
-        s[fam] = (y - n * x) / np.hypot(1, n)  # signed distance-like coordinate across family fam
-    for fam, n in ((1, pattern.n1), (2, pattern.n2)):
-        other, n_o = (2, pattern.n2) if fam == 1 else (1, pattern.n1)
-        offs = pattern.offsets_px(fam) / np.hypot(1, n)
-        k = np.clip(np.searchsorted(offs, s[fam]), 1, len(offs) - 1)
-        d = np.minimum(np.abs(s[fam] - offs[k - 1]), np.abs(s[fam] - offs[k]))
-        offs_o = pattern.offsets_px(other) / np.hypot(1, n_o)
-        inside = (s[other] >= offs_o[0] - half) & (s[other] <= offs_o[-1] + half)
-        near |= (d <= 0.5 * scale) & inside
-    with np.errstate(invalid="ignore"):
-        return near & truth.lit & np.isfinite(scale)
+    """The coverage target: `benchmarks._common.line_centre_pixels`."""
+    return line_centre_pixels(truth, pattern)
 
 
 def coverage(truth, pattern: GridPattern, q_cam: np.ndarray) -> float:
     """Share of `line_pixels` with a reconstructed point within 1.5 camera px."""
-    return covered_share(line_pixels(truth, pattern), q_cam, radius_px=1.5)
+    return coverage_lines(truth, pattern, q_cam, radius_px=1.5)
 
 
 def evaluate(image, truth, procam, pattern, depth_range, labeller: str, repeat: int) -> dict:

@@ -164,7 +164,12 @@ def _coverage(truth, pattern: GridPattern, q_cam: np.ndarray) -> float:
     q = truth.q_proj.astype(np.float64)
     x = q[..., 0] - pattern.centre_px[0]
     y = q[..., 1] - pattern.centre_px[1]
-    scale = np.maximum(np.linalg.norm(np.gradient(q, axis=1), axis=2), np.linalg.norm(np.gradient(q, axis=0), axis=2))
+    # projector px per camera px from one-sided differences (the smaller per axis): a central difference
+    # across a depth edge would count silhouette pixels as line pixels (decision 0075)
+    d0, d1 = np.linalg.norm(np.diff(q, axis=0), axis=2), np.linalg.norm(np.diff(q, axis=1), axis=2)
+    nan_row, nan_col = np.full((1, q.shape[1]), np.nan), np.full((q.shape[0], 1), np.nan)
+    scale = np.fmax(np.fmin(np.vstack([d0, nan_row]), np.vstack([nan_row, d0])),
+                    np.fmin(np.hstack([d1, nan_col]), np.hstack([nan_col, d1])))
     lo, hi = pattern.indices[0], pattern.indices[-1]
     c = {1: (y - pattern.n1 * x) / pattern.pitch_px, 2: (y - pattern.n2 * x) / pattern.pitch_px}
     half = 0.5 * pattern.line_width_px / pattern.pitch_px
