@@ -43,7 +43,6 @@ from reconstruction._continuation_kernels import chain_values, crossing_in_gap, 
 from reconstruction._label_kernels import crossing_hits_traces, sample_grid
 from reconstruction._link_kernels import facing_links_mid
 from reconstruction._label_kernels import project_nearest_line as project_nearest_line_kernel
-from reconstruction.geometry import depth_cam
 from reconstruction.rigmodel import RigModel
 
 #: directions of two facing ends may differ by at most this
@@ -91,16 +90,11 @@ def project_nearest_line(model: RigModel, family: np.ndarray, p_proj: np.ndarray
     distortion (`_label_kernels.project_nearest_line`, the same float operations); other models project
     with `Intrinsics.project`."""
     proj = model.procam.projector
-    pat = model.pattern
     fam = np.ascontiguousarray(np.asarray(family).reshape(-1), np.int64)
     p = np.ascontiguousarray(np.asarray(p_proj, np.float64).reshape(-1, 3))
     if proj.dist.size > 5:
         return nearest_line(model, fam, proj.project(p))
-    offs = np.ascontiguousarray(np.stack([np.asarray(pat.offsets_px(1), np.float64), np.asarray(pat.offsets_px(2), np.float64)]))
-    return project_nearest_line_kernel(
-        p, fam, np.ascontiguousarray(proj.K, np.float64), np.ascontiguousarray(proj.dist[:5], np.float64), bool(proj.has_distortion),
-        float(pat.centre_px[0]), float(pat.centre_px[1]), np.array([pat.n1, pat.n2]), offs,
-        np.array([np.hypot(1.0, pat.n1), np.hypot(1.0, pat.n2)]), np.ascontiguousarray(pat.indices, np.int64))
+    return project_nearest_line_kernel(p, fam, *model.nearest_line_tables)  # tables cached per rig (decision 0078)
 
 
 def continue_lines(
@@ -199,8 +193,7 @@ def _check_pieces(cand, k_of, q, fam, sid, piece, tangent, e, u, f_e, model: Rig
     passed = np.zeros(2 * nc, bool)
     sel = np.flatnonzero(evaluated)
     if len(sel):
-        p = model.intersect_light_sheets(model.cam_normalised(c[sel]), fe[sel], k_of[pe[sel]].astype(np.int64))
-        _, res = project_nearest_line(model, 3 - fe[sel], p)
+        _, _, _, res = model.sheet_check(c[sel], fe[sel], k_of[pe[sel]].astype(np.int64))  # nearest line of 3 − fe
         passed[sel] = res <= tol_px
     evaluated = evaluated.reshape(2, nc)
     passed = passed.reshape(2, nc)
@@ -210,8 +203,7 @@ def _check_pieces(cand, k_of, q, fam, sid, piece, tangent, e, u, f_e, model: Rig
     flag[cand[good]] = True
     pos = samples_of(piece, flag)
     if len(pos):
-        p = model.intersect_light_sheets(model.cam_normalised(q[sid[pos]]), fam[sid[pos]], k_of[piece[pos]].astype(np.int64))
-        z = depth_cam(model.procam, p)
+        _, z, _, _ = model.sheet_check(q[sid[pos]], fam[sid[pos]], k_of[piece[pos]].astype(np.int64))
         out = ~((z >= depth_range_mm[0]) & (z <= depth_range_mm[1]))
         bad = np.zeros(n_p, bool)
         bad[piece[pos[out]]] = True

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from reconstruction import _label_kernels as _k
-from reconstruction.continuation import continue_lines, crossing_gap_px, project_nearest_line
+from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import depth_cam, epipolar_lines, paper_epipolar_mb
 from reconstruction.rigmodel import UNLABELLED, RigModel
@@ -650,9 +650,7 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
             c = c[sel]
             f = fe[sel]
             m = index[sid[o]].astype(np.int64)
-            p = model.intersect_light_sheets(model.cam_normalised(c), 3 - f, m)
-            z = depth_cam(model.procam, p)
-            kk, res = project_nearest_line(model, f, p)
+            _, z, kk, res = model.sheet_check(c, 3 - f, m)  # light sheet m, depth, nearest line of family f
             good = (res <= options.cross_residual_px) & (z >= depth_range_mm[0]) & (z <= depth_range_mm[1])
             k_end[sel[good]] = kk[good]
             jid_end[sel[good]] = seed_jid[sid[o[good]]]

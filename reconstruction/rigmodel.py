@@ -19,7 +19,8 @@ import numpy as np
 
 from calibration.models import ProCam
 from reconstruction._jit import njit
-from reconstruction.geometry import triangulate_rays
+from reconstruction._label_kernels import project_nearest_line as _project_nearest_line
+from reconstruction.geometry import depth_cam, triangulate_rays
 from reconstruction.patterns import GridPattern
 from reconstruction.placement import LabellingMargin, labelling_margin
 
@@ -79,14 +80,15 @@ class RigModel:
         det = np.abs(np.linalg.det(self.J_proj_cam.reshape(-1, 2, 2)))
         return float(np.median(1.0 / np.sqrt(det[det > 0]))) if np.any(det > 0) else 1.0
 
-    @property
+    @cached_property
     def line_width_cam_px(self) -> float:
-        """Typical width of a projected line in the camera image (px), at z_ref_mm."""
+        """Typical width of a projected line in the camera image (px), at z_ref_mm (cached per rig)."""
         return float(self.pattern.line_width_px * self.cam_per_proj_px)
 
-    @property
+    @cached_property
     def junction_step_cam_px(self) -> float:
-        """Typical distance in the camera (px) between neighbouring junctions along a line, at z_ref_mm."""
+        """Typical distance in the camera (px) between neighbouring junctions along a line, at z_ref_mm
+        (cached per rig: the label stage reads it several times per frame, decision 0078)."""
         p, n1, n2 = self.pattern.pitch_px, self.pattern.n1, self.pattern.n2
         along = min(np.hypot(1, n1), np.hypot(1, n2)) * p / abs(n2 - n1)
         return float(along * self.cam_per_proj_px)
@@ -126,6 +128,48 @@ class RigModel:
             np.ascontiguousarray(procam.camera.K), *self._sheet_kernel_tables,
         )
         return not (distorted and proj.dist.size > 5), tables
+
+    @cached_property
+    def nearest_line_tables(self) -> tuple:
+        """The arguments after (p, family) of `_label_kernels.project_nearest_line` for this rig (projector
+        K, its first 5 distortion coefficients, distorted?, pattern centre, slopes n1 n2, line offsets (2, L),
+        hypot(1, n) per family, line indices), built once per rig instead of per call (decision 0078)."""
+        proj = self.procam.projector
+        pat = self.pattern
+        offs = np.ascontiguousarray(np.stack([np.asarray(pat.offsets_px(1), np.float64), np.asarray(pat.offsets_px(2), np.float64)]))
+        return (np.ascontiguousarray(proj.K, np.float64), np.ascontiguousarray(proj.dist[:5], np.float64), bool(proj.has_distortion),
+                float(pat.centre_px[0]), float(pat.centre_px[1]), np.array([pat.n1, pat.n2]), offs,
+                np.array([np.hypot(1.0, pat.n1), np.hypot(1.0, pat.n2)]), np.ascontiguousarray(pat.indices, np.int64))
+
+    def sheet_check(self, q_cam: np.ndarray, family: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """For camera pixels q_cam (N, 2) on the light sheets of lines (family (N,) 1 or 2, integer index (N,)):
+        the points p_proj (N, 3) mm, their camera-frame depth z (N,) mm, and the nearest line of the other
+        family (3 − family) to their projector pixel: its index (N,) and distance (N,) projector px.
+
+        Exactly `intersect_light_sheets(cam_normalised(q_cam), family, index)`, `geometry.depth_cam` and
+        `continuation.project_nearest_line(model, 3 − family, p)`: one compiled call (`_k_sheet_check`) of
+        the same kernels and arithmetic when the camera has a table, the projector at most 5 distortion
+        coefficients and every pixel lies inside the table; otherwise those NumPy calls (decision 0078)."""
+        q = np.ascontiguousarray(np.asarray(q_cam, np.float64).reshape(-1, 2))
+        fam = np.ascontiguousarray(np.asarray(family).reshape(-1), dtype=np.intp)
+        idx = np.ascontiguousarray(np.asarray(index).reshape(-1), dtype=np.intp)
+        n = len(q)
+        proj = self.procam.projector
+        if n and self.cam_xy_table is not None and proj.dist.size <= 5:
+            p = np.empty((n, 3))
+            z = np.empty(n)
+            xy = np.empty((n, 2))
+            inside = np.empty(n, np.bool_)
+            k, dist = _k_sheet_check(q, fam, idx, self.cam_xy_table, 1.0 / self.cam_table_px, self.procam.R_proj_cam,
+                                     self.procam.t_proj_cam, self.index_min, self.sheet_nodes, 1 if proj.has_distortion else 0,
+                                     *self._sheet_kernel_tables, *self.nearest_line_tables, xy, inside, p, np.empty(n), z)
+            if k.shape[0] == n:
+                return p, z, k, dist
+        from reconstruction.continuation import project_nearest_line
+
+        p = self.intersect_light_sheets(self.cam_normalised(q), fam, idx)
+        k, dist = project_nearest_line(self, 3 - fam, p)
+        return p, depth_cam(self.procam, p), k, dist
 
     def junction_xy(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         """Normalised projector coordinates (N, 2) of junctions with integer labels inside the pattern."""
@@ -375,6 +419,30 @@ def _k_light_sheets(xy, family, index, R, t, index_min, nodes, iterations,
             out[n, 0] = t0 + lam * d0
             out[n, 1] = t1 + lam * d1
             out[n, 2] = t2 + lam * d2
+
+
+@njit
+def _k_sheet_check(q, family, index, tab, inv_step, R, t, index_min, nodes, iterations,
+                   end_n, end_t, chord_n, chord_t, K_proj, dist, centre, n_other, offsets, inv_dx, guess,
+                   K_nl, dist_nl, distorted, cu, cv, n12, offs, hyp, indices, xy, inside, out, s_tmp, z):
+    """`RigModel.sheet_check` in one call: the camera table (`_k_cam_bilinear`), the light sheets
+    (`_k_light_sheets`), z = R[:, 2]·(p − t) (as `geometry.depth_cam`), then
+    `_label_kernels.project_nearest_line` with family 3 − family. Returns (index, distance) of the nearest
+    line, or two empty arrays when a pixel lies outside the table (the caller then takes the NumPy path)."""
+    N = q.shape[0]
+    _k_cam_bilinear(q, tab, inv_step, xy, inside)
+    for n in range(N):
+        if not inside[n]:
+            return np.zeros(0, np.int64), np.zeros(0)
+    _k_light_sheets(xy, family, index, R, t, index_min, nodes, iterations,
+                    end_n, end_t, chord_n, chord_t, K_proj, dist, centre, n_other, offsets, inv_dx, guess, out, s_tmp)
+    r02, r12, r22 = R[0, 2], R[1, 2], R[2, 2]
+    t0, t1, t2 = t[0], t[1], t[2]
+    other = np.empty(N, np.int64)
+    for n in range(N):
+        z[n] = (out[n, 0] - t0) * r02 + (out[n, 1] - t1) * r12 + (out[n, 2] - t2) * r22
+        other[n] = 3 - family[n]
+    return _project_nearest_line(out, other, K_nl, dist_nl, distorted, cu, cv, n12, offs, hyp, indices)
 
 
 def _sheet_tables(procam: ProCam, pattern: GridPattern, nodes: int) -> tuple[np.ndarray, np.ndarray]:
