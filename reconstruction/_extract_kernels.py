@@ -854,3 +854,42 @@ def chord_stats(seg, cand, qx, qy, qa, cn, S):
     for g in range(S):
         rms[g] = math.sqrt(ss[g] / max(n[g], 1))
     return rms, mx
+
+
+@njit
+def noise_median_u8(img, starts, blocks):
+    """The median of |r| over the pixels `image_noise_grey` samples, for a uint8 (H, W) image: r is the
+    response to [[1,−2,1],[−2,4,−2],[1,−2,1]] (integers, |r| ≤ 8·255, exact in float32, so the order of the
+    sum does not matter), on rows s+1 and s+2 of each 4-row block starting at `starts` (blocks=True) or on
+    every interior row (blocks=False), columns 1 … W−2. The median is the element of rank n//2 (as
+    `np.partition(a, n // 2)[n // 2]`), found in a histogram of the values (decision 0079)."""
+    H, W = img.shape
+    hist = np.zeros(2041, np.int64)
+    n = 0
+    nb = len(starts) if blocks else 1
+    for b in range(nb):
+        if blocks:
+            r_lo = starts[b] + 1
+            r_hi = starts[b] + 3
+        else:
+            r_lo = 1
+            r_hi = H - 1
+        for y in range(r_lo, r_hi):
+            a = img[y - 1]
+            m = img[y]
+            d = img[y + 1]
+            for x in range(1, W - 1):
+                r = (
+                    (np.int32(a[x - 1]) + np.int32(a[x + 1]) + np.int32(d[x - 1]) + np.int32(d[x + 1]))
+                    - 2 * (np.int32(a[x]) + np.int32(m[x - 1]) + np.int32(m[x + 1]) + np.int32(d[x]))
+                    + 4 * np.int32(m[x])
+                )
+                hist[abs(r)] += 1
+            n += W - 2
+    k = n // 2
+    acc = 0
+    for val in range(2041):
+        acc += hist[val]
+        if acc > k:
+            return val
+    return 0
