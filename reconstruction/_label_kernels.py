@@ -1619,6 +1619,60 @@ def offset_points(rel, off, top, k0, k1, xy_cam, xy_junction, index_min, index_m
 
 
 @njit
+def offset_depth_walk(rel, off, top, xy_cam, xy_junction, index_min, index_max, R, t, z_min, z_max, min_inside_fraction):
+    """labelling._choose_offset's depth walk in one call (decision 0078): the offsets off[top[k]] in ranking
+    order, each component triangulated with it (`offset_points`), until two put at least
+    min_inside_fraction of the junctions inside the pattern and the depth range z = R[:, 2]·(p − t)
+    (`geometry.depth_cam`) in [z_min, z_max]. Returns (pass_k (2,) positions k in top of the first two that
+    pass, −1 where fewer, the number that failed before the first pass, inside (m,) bool of the first).
+    The same results as the chunked NumPy walk: each offset's test is independent of the others, and the
+    chunks only decided when to stop (the walk also stops at the end of a chunk of 4 with two passes, so
+    offsets after the second pass are never looked at)."""
+    m = rel.shape[0]
+    pass_k = np.full(2, -1, np.int64)
+    inside = np.zeros(m, np.bool_)
+    n_fail = 0
+    n_pass = 0
+    r02, r12, r22 = R[0, 2], R[1, 2], R[2, 2]
+    t0, t1, t2 = t[0], t[1], t[2]
+    ntop = top.shape[0]
+    xy_p = np.empty((m, 2))
+    p = np.empty((m, 3))
+    gap = np.empty(m)
+    ins = np.empty(m, np.bool_)
+    for k in range(ntop):
+        oi = off[top[k], 0]
+        oj = off[top[k], 1]
+        for a in range(m):
+            i = rel[a, 0] + oi
+            j = rel[a, 1] + oj
+            ins[a] = i >= index_min and i <= index_max and j >= index_min and j <= index_max
+            i = min(max(i, index_min), index_max)
+            j = min(max(j, index_min), index_max)
+            xy_p[a, 0] = xy_junction[i - index_min, j - index_min, 0]
+            xy_p[a, 1] = xy_junction[i - index_min, j - index_min, 1]
+        _k_triangulate_rays(xy_cam, xy_p, R, t, p, gap)
+        cnt = 0
+        for a in range(m):
+            z = (p[a, 0] - t0) * r02 + (p[a, 1] - t1) * r12 + (p[a, 2] - t2) * r22
+            ins[a] = ins[a] and z >= z_min and z <= z_max
+            if ins[a]:
+                cnt += 1
+        if cnt / m >= min_inside_fraction:
+            if n_pass < 2:
+                pass_k[n_pass] = k
+                if n_pass == 0:
+                    for a in range(m):
+                        inside[a] = ins[a]
+            n_pass += 1
+        elif n_pass == 0:
+            n_fail += 1
+        if n_pass >= 2 and k % 4 == 3:
+            break
+    return pass_k, n_fail, inside
+
+
+@njit
 def offset_residuals(rel, oi, oj, ln, xy_junction, index_min, index_max, fx):
     """Epipolar residuals (m,) in projector px of the labels rel + (oi, oj) (labelling._epipolar_residual_px
     on the clipped labels), NaN for labels outside the pattern (and where the line is not finite)."""

@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 from reconstruction import _label_kernels as _k
 from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.extraction import GridObservation
-from reconstruction.geometry import depth_cam, epipolar_lines, paper_epipolar_mb
+from reconstruction.geometry import epipolar_lines, paper_epipolar_mb
 from reconstruction.rigmodel import UNLABELLED, RigModel
 
 
@@ -160,7 +160,6 @@ def _choose_offset(
 ) -> _Choice:
     """Score every admissible integer offset of one component (relative labels rel (m, 2), epipolar lines
     ln (m, 3), normalised camera points xy_cam (m, 2)) and apply the range and ambiguity tests."""
-    m = len(rel)
     rel = np.ascontiguousarray(rel, np.int64)
     ln = np.ascontiguousarray(ln, np.float64)
     xy_cam = np.ascontiguousarray(xy_cam, np.float64)
@@ -175,30 +174,19 @@ def _choose_offset(
         if status >= 2:
             stats["out_of_pattern"] += 1
         return _Choice("no_admissible_offset")
-    # Walk the ranking (its 16 best) in chunks of offsets triangulated together, until two put the surface
-    # inside the working volume (the depth stays NumPy's `depth_cam`).
+    # Walk the ranking (its 16 best) until two offsets put the surface inside the working volume: one
+    # compiled call (`_label_kernels.offset_depth_walk`, decision 0078; formerly chunks of 4 through
+    # `offset_points` and NumPy's `depth_cam`, with the same results).
     top = ranked[: min(len(ranked), 16)]
-    passing: list[tuple[int, np.ndarray]] = []
-    for k0 in range(0, len(top), 4):
-        k1 = min(k0 + 4, len(top))
-        p, in_pat = _k.offset_points(rel, off, top, k0, k1, xy_cam, model.xy_junction, int(model.index_min),
-                                     int(model.index_max), model.procam.R_proj_cam, model.procam.t_proj_cam)
-        z = depth_cam(model.procam, p).reshape(k1 - k0, m)
-        inside_c = (z >= options.depth_min_mm) & (z <= options.depth_max_mm) & in_pat
-        ok_c = np.count_nonzero(inside_c, axis=1) / inside_c.shape[1] >= options.min_inside_fraction  # the mean, exactly
-        for k in range(k1 - k0):
-            if ok_c[k]:
-                passing.append((int(top[k0 + k]), inside_c[k]))
-            elif not passing:
-                stats["out_of_depth_range"] += 1
-        if len(passing) >= 2:
-            passing = passing[:2]
-            break
-    if not passing:
+    pass_k, n_fail, inside = _k.offset_depth_walk(
+        rel, off, top, xy_cam, model.xy_junction, int(model.index_min), int(model.index_max), model.procam.R_proj_cam,
+        model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm), float(options.min_inside_fraction))
+    stats["out_of_depth_range"] += int(n_fail)
+    if pass_k[0] < 0:
         return _Choice("no_admissible_offset")
-    best, inside = passing[0]
+    best = int(top[pass_k[0]])
     s1 = float(score[best])
-    s2 = float(score[passing[1][0]]) if len(passing) > 1 else cap2
+    s2 = float(score[top[pass_k[1]]]) if pass_k[1] >= 0 else cap2
     sigma2 = max(s1, options.noise_floor_px**2)
     rms = (float(np.sqrt(s1)), float(np.sqrt(s2)))
     lab = rel + off[best]
