@@ -893,3 +893,113 @@ def noise_median_u8(img, starts, blocks):
         if acc > k:
             return val
     return 0
+
+
+@njit(error_model="numpy")
+def junction_verdicts(cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, sx, sy, jump_tol, sin_turn, off_tol, rms_tol):
+    """The per-candidate tests of `extract_grid` on `junction_fits`' output (rows 2·k + family − 1) in one
+    pass, with the NumPy version's float64 operations in the same order (decision 0079): a jump (the mean
+    signed offsets on the two sides differ by more than `jump_tol`, or the mean |sin| exceeds `sin_turn`),
+    too few samples (a family with < 3), not through (a family without samples on both sides), parallel
+    (|d1 × d2| < 0.2), the intersection qj of the two fits off its candidate (sx, sy) by more than
+    `off_tol` or not finite, crooked (an RMS above `rms_tol`, or a jump); each test counts only candidates
+    that passed the ones before.
+
+    Returns valid (ns,) bool, qj (ns, 2), jump, par, offc (ns,) bool, cross (ns,) and the counts
+    (too_few, not_through, parallel, off_centre, crooked) int64 (5,)."""
+    ns = len(sx)
+    valid = np.empty(ns, np.bool_)
+    qj = np.empty((ns, 2))
+    jump = np.empty(ns, np.bool_)
+    par = np.empty(ns, np.bool_)
+    offc = np.empty(ns, np.bool_)
+    cross = np.empty(ns)
+    counts = np.zeros(5, np.int64)
+    for k in range(ns):
+        a = 2 * k
+        b = a + 1
+        jp = (abs(m_neg[a] - m_pos[a]) > jump_tol) | (abs(m_neg[b] - m_pos[b]) > jump_tol)
+        jp |= (mean_sin[a] > sin_turn) | (mean_sin[b] > sin_turn)
+        jump[k] = jp
+        ok = True
+        if (cnt[a] < 3) | (cnt[b] < 3):
+            counts[0] += 1
+            ok = False
+        through = (n_neg[a] >= 1) & (n_pos[a] >= 1) & (n_neg[b] >= 1) & (n_pos[b] >= 1)
+        if ok and not through:
+            counts[1] += 1
+            ok = False
+        c = dr[a, 0] * dr[b, 1] - dr[a, 1] * dr[b, 0]
+        cross[k] = c
+        p = abs(c) < 0.2
+        par[k] = p
+        if ok and p:
+            counts[2] += 1
+            ok = False
+        dx = cen[b, 0] - cen[a, 0]
+        dy = cen[b, 1] - cen[a, 1]
+        t = (dx * dr[b, 1] - dy * dr[b, 0]) / c
+        qx = cen[a, 0] + t * dr[a, 0]
+        qy = cen[a, 1] + t * dr[a, 1]
+        qj[k, 0] = qx
+        qj[k, 1] = qy
+        o = (math.hypot(qx - sx[k], qy - sy[k]) > off_tol) | (not (np.isfinite(qx) & np.isfinite(qy)))
+        offc[k] = o
+        if ok and o:
+            counts[3] += 1
+            ok = False
+        crooked = (rms[a] > rms_tol) | (rms[b] > rms_tol) | jp
+        if ok and crooked:
+            counts[4] += 1
+            ok = False
+        valid[k] = ok
+    return valid, qj, jump, par, offc, cross, counts
+
+
+@njit
+def segment_lists(seg, fam, S):
+    """The samples in segments (sidx, ascending), their segment ids (sg) and each segment's family (S,)
+    int8 (the last sample's, as NumPy's fancy assignment `seg_family[sg] = fam[sidx]`) in one pass."""
+    P = len(seg)
+    sidx = np.empty(P, np.int64)
+    sg = np.empty(P, np.int64)
+    seg_family = np.zeros(S, np.int8)
+    n = 0
+    for i in range(P):
+        g = seg[i]
+        if g >= 0:
+            sidx[n] = i
+            sg[n] = g
+            seg_family[g] = fam[i]
+            n += 1
+    return sidx[:n], sg[:n], seg_family
+
+
+@njit
+def chord_stats_ends(seg, segment_ends, q_junction, qx, qy, S):
+    """`chord_stats` with its inputs made in the same pass (decision 0079): a segment is a candidate edge
+    when both ends reach two different kept junctions; its chord runs from qa = q_junction[end 0] to
+    qb = q_junction[end 1], cn = (−chord_y, chord_x) / |chord| (np.hypot; 1 where |chord| = 0), NaN for the
+    others, as the NumPy code built them. Returns cand (S,) bool, rms (S,), max (S,) of the samples'
+    distances from the chord."""
+    cand = np.empty(S, np.bool_)
+    qa = np.full((S, 2), np.nan)
+    cn = np.full((S, 2), np.nan)
+    for g in range(S):
+        a = segment_ends[g, 0]
+        b = segment_ends[g, 1]
+        c = (a >= 0) & (b >= 0) & (a != b)
+        cand[g] = c
+        if c:
+            ax = q_junction[a, 0]
+            ay = q_junction[a, 1]
+            chx = q_junction[b, 0] - ax
+            chy = q_junction[b, 1] - ay
+            clen = math.hypot(chx, chy)
+            d = clen if clen > 0 else 1.0
+            qa[g, 0] = ax
+            qa[g, 1] = ay
+            cn[g, 0] = -chy / d
+            cn[g, 1] = chx / d
+    rms, mx = chord_stats(seg, cand, qx, qy, qa, cn, S)
+    return cand, rms, mx

@@ -353,10 +353,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     # each sample looks ahead along its own line: one and two steps along the dominant axis of its
     # tangent, the two pixels across that the line can reach (4 probes instead of the 12 of a 5x3 window)
     seg, S = _k.link_segments(u, v, core, qx32, qy32, nx32, ny32, fam, Hw, Ww)
-    sidx = np.nonzero(seg >= 0)[0]
-    sg = seg[sidx]
-    seg_family = np.zeros(S, np.int8)
-    seg_family[sg] = fam[sidx]
+    sidx, sg, seg_family = _k.segment_lists(seg, fam, S)
     seg_cen, seg_dir, seg_rms, _ = _k.line_fit(sg, sidx, qx32, qy32, S)
     stats["segments"] = int(S)
 
@@ -387,41 +384,29 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     rms_j = np.zeros((ns, 2))
     if ns:
         cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin = _k.junction_fits(arm_of, fam, qx32, qy32, nx32, ny32, seeds_x, seeds_y, ns)
-        n_neg, n_pos = n_neg.reshape(ns, 2), n_pos.reshape(ns, 2)
+        # in one kernel (decision 0079), in this order, each reason counting the candidates still valid:
         # a line that jumps sideways at the crossing (a depth edge: two surfaces' lines meeting) is no
-        # crossing: compare the mean signed offsets from the fit on both sides
-        jump = (np.abs(m_neg - m_pos).reshape(ns, 2) > options.max_segment_rms_px / scale).any(axis=1)
-        # ... and with few samples the fit turns to absorb such a jump: the samples' own directions
-        # (across-line normals) then disagree with the fitted direction
-        jump |= (mean_sin.reshape(ns, 2) > np.sin(np.deg2rad(options.max_arm_turn_deg))).any(axis=1)
-        cen = cen.reshape(ns, 2, 2)
+        # crossing: compare the mean signed offsets from the fit on both sides; and with few samples the
+        # fit turns to absorb such a jump: the samples' own directions (across-line normals) then
+        # disagree with the fitted direction. Then too few samples; a line not running through (no
+        # samples on one side); the two fits parallel; their intersection qj off the candidate (or not
+        # finite); an arm crooked (RMS) or jumping.
+        valid, qj, jump, par, offc, cross, counts = _k.junction_verdicts(
+            cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, seeds_x, seeds_y, options.max_segment_rms_px / scale,
+            float(np.sin(np.deg2rad(options.max_arm_turn_deg))), max(options.max_junction_offset_px / scale, 0.5 * r0 + 0.5),
+            options.max_segment_rms_px / scale,
+        )  # fmt: skip
+        reasons["too_few_samples"] += int(counts[0])
+        reasons["not_through"] = int(counts[1])
+        reasons["parallel"] = int(counts[2])
+        reasons["off_centre"] = int(counts[3])
+        reasons["crooked"] = int(counts[4])
+        n_neg, n_pos = n_neg.reshape(ns, 2), n_pos.reshape(ns, 2)
         dr = dr.reshape(ns, 2, 2)
         rms = rms.reshape(ns, 2)
         cnt = cnt.reshape(ns, 2)
-        valid = np.ones(ns, bool)
-        few = (cnt < 3).any(axis=1)
-        reasons["too_few_samples"] += int(few.sum())
-        valid &= ~few
-        through = ((n_neg >= 1) & (n_pos >= 1)).all(axis=1)
-        reasons["not_through"] = int((valid & ~through).sum())
-        valid &= through
         d1, d2 = dr[:, 0], dr[:, 1]
-        cross = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-        par = np.abs(cross) < 0.2
-        reasons["parallel"] = int((valid & par).sum())
-        valid &= ~par
-        with np.errstate(divide="ignore", invalid="ignore"):
-            diff = cen[:, 1] - cen[:, 0]
-            a = (diff[:, 0] * d2[:, 1] - diff[:, 1] * d2[:, 0]) / cross
-            qj = cen[:, 0] + a[:, None] * d1
-        offc = np.hypot(*(qj - seeds).T) > max(options.max_junction_offset_px / scale, 0.5 * r0 + 0.5)
-        offc |= ~np.isfinite(qj).all(axis=1)
-        reasons["off_centre"] = int((valid & offc).sum())
-        valid &= ~offc
         rms_j = rms
-        crooked = (rms > options.max_segment_rms_px / scale).any(axis=1) | jump
-        reasons["crooked"] = int((valid & crooked).sum())
-        valid &= ~crooked
         # two candidates on one crossing converge to one intersection: keep the stronger
         vid = np.nonzero(valid)[0]
         if len(vid) > 1:
@@ -471,15 +456,8 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     ms["junctions+segments"] = 1e3 * (t4 - t3)
 
     # --- edges: two ends on two junctions, straight along the chord --------------------------------------
-    cand = (segment_ends[:, 0] >= 0) & (segment_ends[:, 1] >= 0) & (segment_ends[:, 0] != segment_ends[:, 1])
-    qa_ = np.full((S, 2), np.nan)
-    qb_ = np.full((S, 2), np.nan)
-    qa_[cand] = q_junction[segment_ends[cand, 0]]
-    qb_[cand] = q_junction[segment_ends[cand, 1]]
-    chord = qb_ - qa_
-    clen = np.hypot(chord[:, 0], chord[:, 1])
-    cn = np.column_stack([-chord[:, 1], chord[:, 0]]) / np.where(clen > 0, clen, 1)[:, None]
-    rms_ch, max_ch = _k.chord_stats(seg, cand, qx32, qy32, qa_, cn, S)
+    # (a candidate edge: both ends on two different junctions; the samples' distances from the chord)
+    cand, rms_ch, max_ch = _k.chord_stats_ends(seg, segment_ends, q_junction, qx32, qy32, S)
     tol = options.max_segment_rms_px / scale
     straight = cand & (rms_ch <= tol) & (max_ch <= 3 * tol + 0.5)
     stats["segments_crooked"] = int((cand & ~straight).sum())

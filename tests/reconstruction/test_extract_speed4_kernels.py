@@ -48,3 +48,106 @@ def test_noise_kernel_saturated_extremes():
     img[1::2, 1::2] = 255
     assert extraction.image_noise_grey(img) == _noise_reference(img) == 2040 / (0.6745 * 6.0)
     assert k.noise_median_u8(img, np.zeros(0, np.intp), False) == 2040
+
+
+def _verdicts_numpy(cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, seeds, jump_tol, sin_turn, off_tol, rms_tol):
+    """The NumPy block of `extract_grid` that `junction_verdicts` replaced (before 0079)."""
+    ns = len(seeds)
+    reasons = {}
+    n_neg, n_pos = n_neg.reshape(ns, 2), n_pos.reshape(ns, 2)
+    jump = (np.abs(m_neg - m_pos).reshape(ns, 2) > jump_tol).any(axis=1)
+    jump |= (mean_sin.reshape(ns, 2) > sin_turn).any(axis=1)
+    cen = cen.reshape(ns, 2, 2)
+    dr = dr.reshape(ns, 2, 2)
+    rms = rms.reshape(ns, 2)
+    cnt = cnt.reshape(ns, 2)
+    valid = np.ones(ns, bool)
+    few = (cnt < 3).any(axis=1)
+    reasons["too_few"] = int(few.sum())
+    valid &= ~few
+    through = ((n_neg >= 1) & (n_pos >= 1)).all(axis=1)
+    reasons["not_through"] = int((valid & ~through).sum())
+    valid &= through
+    d1, d2 = dr[:, 0], dr[:, 1]
+    cross = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+    par = np.abs(cross) < 0.2
+    reasons["parallel"] = int((valid & par).sum())
+    valid &= ~par
+    with np.errstate(divide="ignore", invalid="ignore"):
+        diff = cen[:, 1] - cen[:, 0]
+        a = (diff[:, 0] * d2[:, 1] - diff[:, 1] * d2[:, 0]) / cross
+        qj = cen[:, 0] + a[:, None] * d1
+    offc = np.hypot(*(qj - seeds).T) > off_tol
+    offc |= ~np.isfinite(qj).all(axis=1)
+    reasons["off_centre"] = int((valid & offc).sum())
+    valid &= ~offc
+    crooked = (rms > rms_tol).any(axis=1) | jump
+    reasons["crooked"] = int((valid & crooked).sum())
+    valid &= ~crooked
+    return valid, qj, jump, par, offc, cross, np.array(list(reasons.values()))
+
+
+def test_junction_verdicts_match_the_numpy_block():
+    rng = np.random.default_rng(11)
+    ns = 4000
+    seeds = rng.uniform(0, 500, (ns, 2))
+    ang = rng.uniform(0, np.pi, (2 * ns))
+    ang[1::2] = ang[0::2] + rng.choice([np.pi / 2, 0.1, 0.0, 1.2], ns)  # right angles, near-parallel, parallel (cross 0)
+    dr = np.column_stack([np.cos(ang), np.sin(ang)])
+    cen = np.repeat(seeds, 2, axis=0) + rng.normal(0, 0.8, (2 * ns, 2))
+    cen[:40] = np.nan  # a failed fit
+    rms = np.abs(rng.normal(0, 0.4, 2 * ns))
+    cnt = rng.integers(0, 12, 2 * ns)
+    n_neg = rng.integers(0, 4, 2 * ns).astype(np.float64)
+    n_pos = rng.integers(0, 4, 2 * ns).astype(np.float64)
+    m_neg = rng.normal(0, 0.4, 2 * ns)
+    m_pos = rng.normal(0, 0.4, 2 * ns)
+    mean_sin = np.abs(rng.normal(0, 0.12, 2 * ns))
+    args = (0.6, float(np.sin(np.deg2rad(9.0))), 1.5, 0.6)
+    want = _verdicts_numpy(cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, seeds, *args)
+    got = k.junction_verdicts(cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, seeds[:, 0].copy(), seeds[:, 1].copy(), *args)
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g, w)  # bit for bit, NaN where NumPy had NaN
+    counts = got[-1]
+    assert (counts > 50).all()  # every reason occurs
+    assert 30 < got[0].sum() < ns // 2  # and some candidates pass
+    assert not np.isfinite(got[1][:20]).any()  # the failed fits: qj NaN, off centre
+
+
+def test_segment_lists_and_chord_stats_ends_match_numpy():
+    rng = np.random.default_rng(5)
+    P, S, M = 5000, 300, 80
+    seg = rng.integers(-1, S, P)
+    seg[rng.random(P) < 0.2] = -1
+    fam = rng.integers(1, 3, P).astype(np.int8)
+    sidx, sg, seg_family = k.segment_lists(seg, fam, S)
+    ref_sidx = np.nonzero(seg >= 0)[0]
+    ref_family = np.zeros(S, np.int8)
+    ref_family[seg[ref_sidx]] = fam[ref_sidx]
+    np.testing.assert_array_equal(sidx, ref_sidx)
+    np.testing.assert_array_equal(sg, seg[ref_sidx])
+    np.testing.assert_array_equal(seg_family, ref_family)
+    assert sidx.dtype == np.int64 and sg.dtype == np.int64
+
+    q_junction = rng.uniform(0, 400, (M, 2))
+    q_junction[7] = q_junction[3]  # a zero-length chord
+    segment_ends = rng.integers(-1, M, (S, 2))
+    segment_ends[:10] = [3, 7]
+    segment_ends[10:20, 1] = segment_ends[10:20, 0]  # both ends on one junction: no candidate
+    qx = rng.uniform(0, 400, P).astype(np.float32)
+    qy = rng.uniform(0, 400, P).astype(np.float32)
+    # the NumPy formulation before 0079
+    cand = (segment_ends[:, 0] >= 0) & (segment_ends[:, 1] >= 0) & (segment_ends[:, 0] != segment_ends[:, 1])
+    qa_ = np.full((S, 2), np.nan)
+    qb_ = np.full((S, 2), np.nan)
+    qa_[cand] = q_junction[segment_ends[cand, 0]]
+    qb_[cand] = q_junction[segment_ends[cand, 1]]
+    chord = qb_ - qa_
+    clen = np.hypot(chord[:, 0], chord[:, 1])
+    cn = np.column_stack([-chord[:, 1], chord[:, 0]]) / np.where(clen > 0, clen, 1)[:, None]
+    rms_ref, max_ref = k.chord_stats(seg, cand, qx, qy, qa_, cn, S)
+    c2, rms, mx = k.chord_stats_ends(seg, segment_ends, q_junction, qx, qy, S)
+    np.testing.assert_array_equal(c2, cand)
+    np.testing.assert_array_equal(rms, rms_ref)
+    np.testing.assert_array_equal(mx, max_ref)
+    assert cand[:10].all() and not cand[10:20].any() and (rms[cand] > 10).any()
