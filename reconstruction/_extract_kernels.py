@@ -193,14 +193,14 @@ def albedo_and_families(u, v, ox, oy, nx, ny, st, xu, xv, xs, Hw, Ww, min_rel, c
     qx, qy float32 = u + ox, v + oy) and the kept crossing candidates (xu, xv, xs), in input order, as
     views of arrays of the input's length (every sample is written at the next free place, the place
     advances only where it is kept: branch-free)."""
-    cell_s = 16
+    cell_s = 16  # pixel coordinates are ≥ 0: `>> 4` below is their `// cell_s` without the signed floor (0079)
     gh = Hw // cell_s + 1
     gw = Ww // cell_s + 1
     n = len(u)
     m0 = np.zeros((gh, gw), np.float32)
     for k in range(n):
-        r = v[k] // cell_s
-        c = u[k] // cell_s
+        r = v[k] >> 4
+        c = u[k] >> 4
         if st[k] > m0[r, c]:
             m0[r, c] = st[k]
     local = np.zeros((gh, gw), np.float32)
@@ -233,7 +233,7 @@ def albedo_and_families(u, v, ox, oy, nx, ny, st, xu, xv, xs, Hw, Ww, min_rel, c
         j = rd * gw_d + cd
         c1 = abs(dir4[j, 1] * nx[k] - dir4[j, 0] * ny[k])
         c2 = abs(dir4[j, 3] * nx[k] - dir4[j, 2] * ny[k])
-        keep = (st[k] >= min_rel * local[vk // cell_s, uk // cell_s]) & (abs(c1 - c2) >= margin)
+        keep = (st[k] >= min_rel * local[vk >> 4, uk >> 4]) & (abs(c1 - c2) >= margin)
         ou[m] = uk
         ov[m] = vk
         oox[m] = ox[k]
@@ -254,7 +254,7 @@ def albedo_and_families(u, v, ox, oy, nx, ny, st, xu, xv, xs, Hw, Ww, min_rel, c
         oxu[j] = xu[k]
         oxv[j] = xv[k]
         oxs[j] = xs[k]
-        j += xs[k] >= cross_rel * local[xv[k] // cell_s, xu[k] // cell_s]
+        j += xs[k] >= cross_rel * local[xv[k] >> 4, xu[k] >> 4]
     return ou[:m], ov[:m], oox[:m], ooy[:m], onx[:m], ony[:m], ost[:m], ofam[:m], qx[:m], qy[:m], oxu[:j], oxv[:j], oxs[:j]
 
 
