@@ -645,7 +645,9 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
         # the pieces' ends next to the crossings are left out: the other line's profile pulls the ridge
         taken, written = _k.cross_round_write(todo, k_end, jid_end, bool(options.cross_both_ends), UNLABELLED, first, last,
                                               ts_all, sid, float(trim_px), index, seed_jid)
-        if taken == 0:
+        if taken == 0 or written == 0:
+            # no sample changed (pieces taken but shorter than the trims write nothing): the next round would
+            # see the same index and repeat this one exactly (decision 0078)
             break
         total += int(written)
     return total
