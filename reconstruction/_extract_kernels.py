@@ -1003,3 +1003,21 @@ def chord_stats_ends(seg, segment_ends, q_junction, qx, qy, S):
             cn[g, 1] = chx / d
     rms, mx = chord_stats(seg, cand, qx, qy, qa, cn, S)
     return cand, rms, mx
+
+
+@njit
+def ordered_seeds(xu, xv, xs, seed):
+    """The crossing candidates flagged in `seed`, weakest first (a stable sort by xs: ties keep their
+    scan order, as `np.argsort(kind="stable")`): positions (k, 2) float64 (xu, xv) and scores (k,) float32."""
+    idx = np.nonzero(seed)[0]
+    sc = xs[idx]
+    order = np.argsort(sc, kind="mergesort")  # stable: the one order NumPy's stable sort gives
+    k = len(idx)
+    out = np.empty((k, 2))
+    score = np.empty(k, np.float32)
+    for t in range(k):
+        i = idx[order[t]]
+        out[t, 0] = np.float64(xu[i])
+        out[t, 1] = np.float64(xv[i])
+        score[t] = xs[i]
+    return out, score

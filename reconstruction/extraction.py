@@ -298,9 +298,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     seed = _k.crossing_seeds(xu, xv, xs, cell, gh, gw)
     if options.debug:
         stats["debug_xpix"] = (xu * scale, xv * scale, xs)
-    order = np.argsort(xs[seed], kind="stable")  # weakest first: the strongest seed wins overlaps below
-    seeds = np.column_stack([xu[seed][order], xv[seed][order]]).astype(np.float64)
-    seed_score = xs[seed][order]
+    seeds, seed_score = _k.ordered_seeds(xu, xv, xs, seed)  # weakest first: the strongest seed wins overlaps below
     stats["junction_candidates"] = int(len(seeds))
     stats["junction_radius_px"] = R * scale
     stats["junction_core_px"] = r0 * scale

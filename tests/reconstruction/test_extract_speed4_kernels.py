@@ -151,3 +151,20 @@ def test_segment_lists_and_chord_stats_ends_match_numpy():
     np.testing.assert_array_equal(rms, rms_ref)
     np.testing.assert_array_equal(mx, max_ref)
     assert cand[:10].all() and not cand[10:20].any() and (rms[cand] > 10).any()
+
+
+@pytest.mark.parametrize("n", [0, 1, 3000])
+def test_ordered_seeds_is_numpys_stable_order(n):
+    rng = np.random.default_rng(n)
+    xu = rng.integers(0, 1280, n)
+    xv = np.sort(rng.integers(0, 1024, n))
+    xs = rng.integers(1, 40, n).astype(np.float32) * np.float32(0.25)  # many ties
+    seed = rng.random(n) < 0.3
+    order = np.argsort(xs[seed], kind="stable")
+    want = np.column_stack([xu[seed][order], xv[seed][order]]).astype(np.float64)
+    seeds, score = k.ordered_seeds(xu, xv, xs, seed)
+    np.testing.assert_array_equal(seeds, want.reshape(-1, 2))
+    np.testing.assert_array_equal(score, xs[seed][order])
+    assert seeds.dtype == np.float64 and score.dtype == np.float32
+    if n > 100:
+        assert len(np.unique(score)) < len(score) // 5 and (np.diff(score) >= 0).all()
