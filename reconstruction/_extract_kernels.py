@@ -1021,3 +1021,42 @@ def ordered_seeds(xu, xv, xs, seed):
         out[t, 1] = np.float64(xv[i])
         score[t] = xs[i]
     return out, score
+
+
+@njit
+def edge_candidates(cand, rms_ch, max_ch, tol, max_tol, segment_ends, seg_family, q_junction, scale):
+    """The straight candidate edges (cand, RMS ≤ tol and maximum ≤ max_tol from the chord) in segment
+    order, as the NumPy code listed them (decision 0079): sid, a_j, b_j (junction ids), fam_s (int8),
+    mid = 0.5·(q_a + q_b)·scale (full-resolution px, for the model's Jacobian), dq = q_b − q_a, elen =
+    hypot(dq) (float64), and the number of candidates that were not straight."""
+    S = len(cand)
+    sid = np.empty(S, np.int64)
+    n = 0
+    n_crooked = 0
+    for g in range(S):
+        if cand[g]:
+            if (rms_ch[g] <= tol) & (max_ch[g] <= max_tol):
+                sid[n] = g
+                n += 1
+            else:
+                n_crooked += 1
+    sid = sid[:n]
+    a_j = np.empty(n, np.int64)
+    b_j = np.empty(n, np.int64)
+    fam_s = np.empty(n, np.int8)
+    mid = np.empty((n, 2))
+    dq = np.empty((n, 2))
+    elen = np.empty(n)
+    sc = np.float64(scale)
+    for t in range(n):
+        g = sid[t]
+        a = segment_ends[g, 0]
+        b = segment_ends[g, 1]
+        a_j[t] = a
+        b_j[t] = b
+        fam_s[t] = seg_family[g]
+        for c in range(2):
+            mid[t, c] = 0.5 * (q_junction[a, c] + q_junction[b, c]) * sc
+            dq[t, c] = q_junction[b, c] - q_junction[a, c]
+        elen[t] = math.hypot(dq[t, 0], dq[t, 1])
+    return sid, a_j, b_j, fam_s, mid, dq, elen, n_crooked

@@ -458,16 +458,14 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     # (a candidate edge: both ends on two different junctions; the samples' distances from the chord)
     cand, rms_ch, max_ch = _k.chord_stats_ends(seg, segment_ends, q_junction, qx32, qy32, S)
     tol = options.max_segment_rms_px / scale
-    straight = cand & (rms_ch <= tol) & (max_ch <= 3 * tol + 0.5)
-    stats["segments_crooked"] = int((cand & ~straight).sum())
-    sid = np.nonzero(straight)[0]
-    a_j = segment_ends[sid, 0]
-    b_j = segment_ends[sid, 1]
-    fam_s = seg_family[sid]
+    # the straight ones (RMS and maximum distance from the chord), their junctions, midpoints and lengths
+    sid, a_j, b_j, fam_s, mid, dq, elen, n_crooked = _k.edge_candidates(
+        cand, rms_ch, max_ch, tol, 3 * tol + 0.5, segment_ends, seg_family, q_junction, scale
+    )
+    stats["segments_crooked"] = int(n_crooked)
     # index change along the edge, from the predicted camera->projector Jacobian
-    mid = 0.5 * (q_junction[a_j] + q_junction[b_j]) * scale
     _, Jpc = model.lookup(mid)
-    dq_proj = np.einsum("nij,nj->ni", Jpc, q_junction[b_j] - q_junction[a_j])
+    dq_proj = np.einsum("nij,nj->ni", Jpc, dq)
     n_other = np.where(fam_s == 1, model.pattern.n2, model.pattern.n1)
     s_other = np.sign(dq_proj[:, 1] - n_other * dq_proj[:, 0]).astype(np.int64)
     delta = np.zeros((len(sid), 2), np.int64)
@@ -476,7 +474,6 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     good = s_other != 0
     # a crossing nobody detected lets a segment run on to the next junction: an edge about twice as long
     # as its neighbour along the same line (at either end) skipped one; drop it
-    elen = np.hypot(*(q_junction[b_j] - q_junction[a_j]).T)
     skip = _k.edge_skips(a_j, b_j, fam_s.astype(np.intp) - 1, elen, M)
     stats["edges_skipping"] = int((good & skip).sum())
     good &= ~skip

@@ -168,3 +168,28 @@ def test_ordered_seeds_is_numpys_stable_order(n):
     assert seeds.dtype == np.float64 and score.dtype == np.float32
     if n > 100:
         assert len(np.unique(score)) < len(score) // 5 and (np.diff(score) >= 0).all()
+
+
+@pytest.mark.parametrize("scale", [1, 2])
+def test_edge_candidates_match_numpy(scale):
+    rng = np.random.default_rng(21 + scale)
+    S, M = 2000, 400
+    cand = rng.random(S) < 0.7
+    rms_ch = np.abs(rng.normal(0, 0.4, S))
+    max_ch = rms_ch * rng.uniform(1, 4, S)
+    segment_ends = rng.integers(-1, M, (S, 2))
+    seg_family = rng.integers(1, 3, S).astype(np.int8)
+    q_junction = rng.uniform(0, 600, (M, 2))
+    tol = 0.6 / scale
+    # the NumPy formulation before 0079
+    straight = cand & (rms_ch <= tol) & (max_ch <= 3 * tol + 0.5)
+    sid = np.nonzero(straight)[0]
+    a_j, b_j = segment_ends[sid, 0], segment_ends[sid, 1]
+    mid = 0.5 * (q_junction[a_j] + q_junction[b_j]) * scale
+    dq = q_junction[b_j] - q_junction[a_j]
+    elen = np.hypot(*(q_junction[b_j] - q_junction[a_j]).T)
+    got = k.edge_candidates(cand, rms_ch, max_ch, tol, 3 * tol + 0.5, segment_ends, seg_family, q_junction, scale)
+    for g, w in zip(got[:7], (sid, a_j, b_j, seg_family[sid], mid, dq, elen)):
+        np.testing.assert_array_equal(g, w)
+        assert g.dtype == w.dtype
+    assert got[7] == int((cand & ~straight).sum()) > 100 and len(sid) > 100
