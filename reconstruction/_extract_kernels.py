@@ -1060,3 +1060,41 @@ def edge_candidates(cand, rms_ch, max_ch, tol, max_tol, segment_ends, seg_family
             dq[t, c] = q_junction[b, c] - q_junction[a, c]
         elen[t] = math.hypot(dq[t, 0], dq[t, 1])
     return sid, a_j, b_j, fam_s, mid, dq, elen, n_crooked
+
+
+@njit
+def drop_duplicates(valid, qj, score):
+    """Two candidates on one crossing converge to one intersection: among the valid junctions whose
+    rint(qj / 2) cells are equal, keep the one with the highest score (ties: the lower index) and clear
+    `valid` (in place) for the others — the set `np.lexsort((−score, key_y, key_x))` marked as duplicates
+    before (decision 0079). Returns their number."""
+    vid = np.nonzero(valid)[0]
+    n = len(vid)
+    if n <= 1:
+        return 0
+    kx = np.empty(n, np.int64)
+    ky = np.empty(n, np.int64)
+    for t in range(n):
+        kx[t] = np.int64(np.rint(qj[vid[t], 0] / 2.0))
+        ky[t] = np.int64(np.rint(qj[vid[t], 1] / 2.0))
+    o1 = np.argsort(ky, kind="mergesort")  # stable sorts: by x, then y, then the index
+    o2 = np.argsort(kx[o1], kind="mergesort")
+    order = o1[o2]
+    n_dup = 0
+    t = 0
+    while t < n:
+        e = t + 1
+        while e < n and kx[order[e]] == kx[order[t]] and ky[order[e]] == ky[order[t]]:
+            e += 1
+        best = order[t]
+        for q in range(t + 1, e):
+            c = order[q]
+            if score[vid[c]] > score[vid[best]]:  # ties keep the lower index (the earlier in order)
+                best = c
+        for q in range(t, e):
+            c = order[q]
+            if c != best:
+                valid[vid[c]] = False
+                n_dup += 1
+        t = e
+    return n_dup

@@ -378,8 +378,6 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         arm_of = _k.arms(sidx, sg, sproj, smin, smax, seg_seed, qx32, qy32, seeds_x32, seeds_y32, np.float32(R), P)
     valid = np.zeros(ns, bool)
     qj = np.full((ns, 2), np.nan)
-    d1 = np.zeros((ns, 2))
-    d2 = np.zeros((ns, 2))
     rms_j = np.zeros((ns, 2))
     if ns:
         cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin = _k.junction_fits(arm_of, fam, qx32, qy32, nx32, ny32, seeds_x, seeds_y, ns)
@@ -404,18 +402,9 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         dr = dr.reshape(ns, 2, 2)
         rms = rms.reshape(ns, 2)
         cnt = cnt.reshape(ns, 2)
-        d1, d2 = dr[:, 0], dr[:, 1]
         rms_j = rms
         # two candidates on one crossing converge to one intersection: keep the stronger
-        vid = np.nonzero(valid)[0]
-        if len(vid) > 1:
-            key = np.rint(qj[vid] / 2.0).astype(np.int64)
-            o2 = np.lexsort((-seed_score[vid], key[:, 1], key[:, 0]))
-            ks = key[o2]
-            dup = np.zeros(len(vid), bool)
-            dup[1:] = (ks[1:] == ks[:-1]).all(axis=1)
-            valid[vid[o2[dup]]] = False
-            reasons["duplicate"] = int(dup.sum())
+        reasons["duplicate"] = int(_k.drop_duplicates(valid, qj, seed_score))
         if options.debug:
             stats["debug_fit"] = {"cnt": cnt, "n_neg": n_neg, "n_pos": n_pos, "rms": rms, "qj": qj * scale, "jump": jump, "jump_off": np.abs(m_neg - m_pos).reshape(ns, 2) * scale, "mean_sin": mean_sin.reshape(ns, 2), "offc": offc, "par": par, "cross": cross}
     stats["junctions_rejected"] = reasons
@@ -428,7 +417,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     new_id = np.full(ns + 1, -1, np.int64)
     new_id[:ns][valid] = np.arange(int(valid.sum()))
     q_junction = qj[valid]
-    junction_dir = np.stack([d1[valid], d2[valid]], axis=1) if ns else np.zeros((0, 2, 2))
+    junction_dir = dr[valid] if ns else np.zeros((0, 2, 2))  # (the fitted i- and j-line directions)
     junction_rms = rms_j[valid] * scale if ns else np.zeros((0, 2))
     M = len(q_junction)
     stats["junctions"] = M

@@ -193,3 +193,35 @@ def test_edge_candidates_match_numpy(scale):
         np.testing.assert_array_equal(g, w)
         assert g.dtype == w.dtype
     assert got[7] == int((cand & ~straight).sum()) > 100 and len(sid) > 100
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_drop_duplicates_marks_numpys_lexsort_duplicates(seed):
+    rng = np.random.default_rng(seed)
+    ns = 3000
+    qj = rng.uniform(0, 120, (ns, 2))  # ~3600 cells of 2 px for 3000 points: many shared cells
+    qj[::7] = np.round(qj[::7] / 2.0) * 2.0 + 1.0  # exact .5 cell boundaries (rint: half to even)
+    score = rng.integers(1, 6, ns).astype(np.float32)  # ties in score
+    valid = rng.random(ns) < 0.8
+    # the NumPy formulation before 0079
+    want = valid.copy()
+    vid = np.nonzero(want)[0]
+    key = np.rint(qj[vid] / 2.0).astype(np.int64)
+    o2 = np.lexsort((-score[vid], key[:, 1], key[:, 0]))
+    ks = key[o2]
+    dup = np.zeros(len(vid), bool)
+    dup[1:] = (ks[1:] == ks[:-1]).all(axis=1)
+    want[vid[o2[dup]]] = False
+    got = valid.copy()
+    n = k.drop_duplicates(got, qj, score)
+    np.testing.assert_array_equal(got, want)
+    assert n == int(dup.sum()) > 300
+
+
+def test_drop_duplicates_small():
+    valid = np.array([True])
+    assert k.drop_duplicates(valid, np.zeros((1, 2)), np.ones(1, np.float32)) == 0 and valid[0]
+    valid = np.array([True, True, False])
+    qj = np.array([[10.0, 10.0], [10.4, 9.8], [10.0, 10.0]])
+    assert k.drop_duplicates(valid, qj, np.array([1.0, 1.0, 9.0], np.float32)) == 1
+    np.testing.assert_array_equal(valid, [True, False, False])  # equal scores: the lower index stays
