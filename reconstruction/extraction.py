@@ -33,8 +33,9 @@ the Hessian, eigenvector and Steger offset of the candidates in blocks that LLVM
 sample order is the scan order), one branch-free pass for the albedo test and the families,
 nearest-candidate lookups on coarse grids, linking with 4 probes per sample on a window of sample-id rows
 and a union-find, the line fits, end walks, arms, trims and chord tests as loops over samples or segments,
-the per-junction tests in one pass (decision 0079); the noise estimate of an 8-bit image is a histogram
-kernel. Removing duplicate junctions and the edges' index steps (hundreds of elements) stay NumPy. The kernels compute what the NumPy
+the per-junction tests and the duplicates in one pass each (decision 0079); the noise estimate of an
+8-bit image is a histogram kernel. The edges' index steps (the model's Jacobian; hundreds of elements)
+stay NumPy. The kernels compute what the NumPy
 passes they replaced did, in the same float widths and order. Times per stage: see
 benchmarks/results/bench_extraction.md.
 """
