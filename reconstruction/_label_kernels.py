@@ -1254,6 +1254,167 @@ def crossing_hits_traces(e, te, sign, fe, q, sid, tangent, fam, index, labelled_
     return o, c
 
 
+@njit
+def crossing_nearest(e, fe, q, fam, index, labelled_only, radius, x0, y0, cell, gw, gh, start, items, pos_of):
+    """The first half of `crossing_hits_traces` (decision 0078): for each end e (E, 2) of family fe the nearest
+    candidate of the other family closer than radius, as (d2, k): squared distance (inf: none) and trace
+    position (−1), the lowest position on a tie. `crossing_test` of it gives crossing_hits_traces' answer."""
+    E = e.shape[0]
+    bd_out = np.full(E, np.inf)
+    bk_out = np.full(E, -1, np.intp)
+    r2 = radius * radius
+    for i in range(E):
+        ex = e[i, 0]
+        ey = e[i, 1]
+        if not (math.isfinite(ex) and math.isfinite(ey)):
+            continue
+        want = 3 - fe[i]
+        cx = int(math.floor((ex - x0) / cell))
+        cy = int(math.floor((ey - y0) / cell))
+        bd = np.inf
+        bk = -1
+        for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
+            for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
+                b = yy * gw + xx
+                for t in range(start[b], start[b + 1]):
+                    s = items[t]
+                    k = pos_of[s]
+                    if k < 0 or fam[s] != want:
+                        continue
+                    if labelled_only and not math.isfinite(index[s]):
+                        continue
+                    d0 = q[s, 0] - ex
+                    d1 = q[s, 1] - ey
+                    d2 = d0 * d0 + d1 * d1
+                    if d2 < r2 and (d2 < bd or (d2 == bd and k < bk)):
+                        bd = d2
+                        bk = k
+        bd_out[i] = bd
+        bk_out[i] = bk
+    return bd_out, bk_out
+
+
+@njit
+def crossing_nearest_update(e, fe, q, fam, pos_of, new_s, radius, bd, bk):
+    """Bring `crossing_nearest`'s (bd, bk) of ends e (E, 2) up to date after the samples new_s became
+    candidates (labelled), in place: a new sample of the other family closer than radius replaces the
+    nearest if it is nearer (or as near with a lower trace position). Candidates are only ever added
+    between crossing rounds, so the result equals a new search over all candidates. Returns changed (E,)."""
+    E = e.shape[0]
+    changed = np.zeros(E, np.bool_)
+    nn = new_s.shape[0]
+    if nn == 0 or E == 0:
+        return changed
+    cell = radius if radius > 0 else 1.0
+    gx0 = np.inf
+    gy0 = np.inf
+    gx1 = -np.inf
+    gy1 = -np.inf
+    for a in range(nn):
+        s = new_s[a]
+        gx0 = min(gx0, q[s, 0])
+        gy0 = min(gy0, q[s, 1])
+        gx1 = max(gx1, q[s, 0])
+        gy1 = max(gy1, q[s, 1])
+    gw = int((gx1 - gx0) / cell) + 1
+    gh = int((gy1 - gy0) / cell) + 1
+    start = np.zeros(gw * gh + 1, np.intp)
+    key = np.empty(nn, np.intp)
+    for a in range(nn):
+        s = new_s[a]
+        cx = min(max(int(math.floor((q[s, 0] - gx0) / cell)), 0), gw - 1)
+        cy = min(max(int(math.floor((q[s, 1] - gy0) / cell)), 0), gh - 1)
+        key[a] = cy * gw + cx
+        start[key[a] + 1] += 1
+    for b in range(gw * gh):
+        start[b + 1] += start[b]
+    fill = start[:-1].copy()
+    items = np.empty(nn, np.intp)
+    for a in range(nn):
+        items[fill[key[a]]] = new_s[a]
+        fill[key[a]] += 1
+    r2 = radius * radius
+    for i in range(E):
+        ex = e[i, 0]
+        ey = e[i, 1]
+        if not (math.isfinite(ex) and math.isfinite(ey)):
+            continue
+        want = 3 - fe[i]
+        fx = math.floor((ex - gx0) / cell)
+        fy = math.floor((ey - gy0) / cell)
+        if fx < -1.0 or fy < -1.0 or fx > gw or fy > gh:
+            continue  # no new sample within a cell of it
+        cx = int(fx)
+        cy = int(fy)
+        for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
+            for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
+                b = yy * gw + xx
+                for t in range(start[b], start[b + 1]):
+                    s = items[t]
+                    k = pos_of[s]
+                    if k < 0 or fam[s] != want:
+                        continue
+                    d0 = q[s, 0] - ex
+                    d1 = q[s, 1] - ey
+                    d2 = d0 * d0 + d1 * d1
+                    if d2 < r2 and (d2 < bd[i] or (d2 == bd[i] and k < bk[i])):
+                        bd[i] = d2
+                        bk[i] = k
+                        changed[i] = True
+    return changed
+
+
+@njit
+def crossing_test(e, te, sign, bk, q, sid, tangent, radius, sin_min):
+    """The second half of `crossing_hits_traces` (decision 0078): the crossing of each end e (E, 2) (tangent
+    te, sign −1 first / +1 last end) with the trace position bk (−1: none): the two tangent lines'
+    intersection c when they differ by more than sin_min and it lies within radius of both along their
+    lines and not behind the end. Returns o (E,) (−1: none) and c (E, 2)."""
+    E = e.shape[0]
+    o = np.full(E, -1, np.intp)
+    c = np.full((E, 2), np.nan)
+    for i in range(E):
+        k = bk[i]
+        if k < 0:
+            continue
+        ex = e[i, 0]
+        ey = e[i, 1]
+        s = sid[k]
+        den = te[i, 0] * tangent[k, 1] - te[i, 1] * tangent[k, 0]
+        if not abs(den) > sin_min:
+            continue
+        w0 = q[s, 0] - ex
+        w1 = q[s, 1] - ey
+        a = (w0 * tangent[k, 1] - w1 * tangent[k, 0]) / den
+        bb = (w0 * te[i, 1] - w1 * te[i, 0]) / den
+        if abs(a) <= radius and abs(bb) <= radius and sign[i] * a >= -1.0:
+            o[i] = k
+            c[i, 0] = ex + a * te[i, 0]
+            c[i, 1] = ey + a * te[i, 1]
+    return o, c
+
+
+@njit
+def samples_labelled_in(todo, first, last, sid, index):
+    """Sample ids with a finite index on the pieces todo (trace positions first[p]..last[p]), in trace
+    order: after a crossing round, the samples it labelled (the pieces had none before)."""
+    n = 0
+    for a in range(todo.shape[0]):
+        p = todo[a]
+        for k in range(first[p], last[p] + 1):
+            if math.isfinite(index[sid[k]]):
+                n += 1
+    out = np.empty(n, np.intp)
+    n = 0
+    for a in range(todo.shape[0]):
+        p = todo[a]
+        for k in range(first[p], last[p] + 1):
+            if math.isfinite(index[sid[k]]):
+                out[n] = sid[k]
+                n += 1
+    return out
+
+
 # --- label_epipolar: offsets of one component ----------------------------------------------------------------
 
 

@@ -622,26 +622,52 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
     if grid is None:
         grid = _sample_grid(q, (fam == 1) | (fam == 2), sid, radius_px)
     total = 0
+    sin_min = float(np.sin(np.deg2rad(20)))
+    # Each piece end's nearest labelled sample of the other family, its crossing's line and junction, kept
+    # from round to round ([side·n_pieces + piece]): labels are only added, so in a later round an end's
+    # nearest candidate changes only where a sample labelled in the round before is nearer; only those
+    # ends are searched and checked again (decision 0078; the same results as a full search every round).
+    bd_p = np.full(2 * n_pieces, np.inf)
+    bk_p = np.full(2 * n_pieces, -1, np.intp)
+    k_end_p = np.full(2 * n_pieces, UNLABELLED, np.int64)
+    jid_end_p = np.full(2 * n_pieces, -1, np.int64)
+    new_s = None
     for _ in range(options.cross_rounds if rounds is None else rounds):
         todo, e, te, sign, fe, first, last = _k.cross_round_ends(q, sid, piece, tangent, fam, index, n_pieces,
                                                                 int(options.cross_min_samples))
         nt = len(todo)
         if nt == 0:
             break
-        k_end = np.full(2 * nt, UNLABELLED, np.int64)
-        jid_end = np.full(2 * nt, -1, np.int64)
-        o, c = _k.crossing_hits_traces(e, te, sign, fe, q, sid, tangent, fam, index, True,
-                                       float(radius_px), float(np.sin(np.deg2rad(20))), *grid)
+        keys = np.concatenate([todo, todo + n_pieces])
+        if new_s is None:
+            bd, bk = _k.crossing_nearest(e, fe, q, fam, index, True, float(radius_px), *grid)
+            redo = np.arange(2 * nt)
+            k_end = np.full(2 * nt, UNLABELLED, np.int64)
+            jid_end = np.full(2 * nt, -1, np.int64)
+        else:
+            bd = bd_p[keys]
+            bk = bk_p[keys]
+            redo = np.flatnonzero(_k.crossing_nearest_update(e, fe, q, fam, grid[7], new_s, float(radius_px), bd, bk))
+            k_end = k_end_p[keys]
+            jid_end = jid_end_p[keys]
+            k_end[redo] = UNLABELLED
+            jid_end[redo] = -1
+        o, c = _k.crossing_test(e[redo], te[redo], sign[redo], bk[redo], q, sid, tangent, float(radius_px), sin_min)
         sel = np.flatnonzero(o >= 0)
         if len(sel):
             o = o[sel]
             c = c[sel]
+            sel = redo[sel]
             f = fe[sel]
             m = index[sid[o]].astype(np.int64)
             _, z, kk, res = model.sheet_check(c, 3 - f, m)  # light sheet m, depth, nearest line of family f
             good = (res <= options.cross_residual_px) & (z >= depth_range_mm[0]) & (z <= depth_range_mm[1])
             k_end[sel[good]] = kk[good]
             jid_end[sel[good]] = seed_jid[sid[o[good]]]
+        bd_p[keys] = bd
+        bk_p[keys] = bk
+        k_end_p[keys] = k_end
+        jid_end_p[keys] = jid_end
         # the pieces' ends next to the crossings are left out: the other line's profile pulls the ridge
         taken, written = _k.cross_round_write(todo, k_end, jid_end, bool(options.cross_both_ends), UNLABELLED, first, last,
                                               ts_all, sid, float(trim_px), index, seed_jid)
@@ -650,6 +676,7 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
             # see the same index and repeat this one exactly (decision 0078)
             break
         total += int(written)
+        new_s = _k.samples_labelled_in(todo, first, last, sid, index)
     return total
 
 
