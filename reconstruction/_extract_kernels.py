@@ -307,6 +307,18 @@ def stamp(cx, cy, radius, cs, grid, pad):
     lo = 1 - pad + rr
     hix = gw + pad - rr - 2
     hiy = gh + pad - rr - 2
+    # the offsets by row: row oy holds ox in [oxa[oy + rr], oxb[oy + rr]] (a contiguous run, |ox| rising);
+    # each centre walks its rows with dy·dy computed once per row (the same float32 values; decision 0079)
+    oxa = np.zeros(2 * rr + 1, np.int64)
+    oxb = np.full(2 * rr + 1, -1, np.int64)
+    for j in range(no):
+        t = offy[j] + rr
+        if oxb[t] < oxa[t]:
+            oxa[t] = offx[j]
+            oxb[t] = offx[j]
+        else:
+            oxa[t] = min(oxa[t], offx[j])
+            oxb[t] = max(oxb[t], offx[j])
     c0x = np.empty(n, np.int64)
     c0y = np.empty(n, np.int64)
     fx = np.empty(n, np.float32)
@@ -318,19 +330,26 @@ def stamp(cx, cy, radius, cs, grid, pad):
         c0y[i] = min(max(int(ccy), lo), hiy)
         fx[i] = np.float32(ccx - c0x[i] - 0.5)  # centre relative to its cell's centre, in cells
         fy[i] = np.float32(ccy - c0y[i] - 0.5)
-        for j in range(no):
-            dx = np.float32(offx[j]) - fx[i]
-            dy = np.float32(offy[j]) - fy[i]
-            d2 = dx * dx + dy * dy
-            r = c0y[i] + pad + offy[j]
-            c = c0x[i] + pad + offx[j]
-            o = grid[r, c]
-            if o >= 0:  # the owner's squared distance, recomputed exactly as when it was stamped
-                odx = np.float32(c - pad - c0x[o]) - fx[o]
-                ody = np.float32(r - pad - c0y[o]) - fy[o]
-                if d2 > odx * odx + ody * ody:
-                    continue
-            grid[r, c] = i
+        fxi = fx[i]
+        for t in range(2 * rr + 1):
+            if oxb[t] < oxa[t]:
+                continue
+            oy = t - rr
+            dy = np.float32(oy) - fy[i]
+            dy2 = dy * dy
+            r = c0y[i] + pad + oy
+            row = grid[r]
+            for ox in range(oxa[t], oxb[t] + 1):
+                dx = np.float32(ox) - fxi
+                d2 = dx * dx + dy2
+                c = c0x[i] + pad + ox
+                o = row[c]
+                if o >= 0:  # the owner's squared distance, recomputed exactly as when it was stamped
+                    odx = np.float32(c - pad - c0x[o]) - fx[o]
+                    ody = np.float32(r - pad - c0y[o]) - fy[o]
+                    if d2 > odx * odx + ody * ody:
+                        continue
+                row[c] = i
 
 
 @njit

@@ -225,3 +225,47 @@ def test_drop_duplicates_small():
     qj = np.array([[10.0, 10.0], [10.4, 9.8], [10.0, 10.0]])
     assert k.drop_duplicates(valid, qj, np.array([1.0, 1.0, 9.0], np.float32)) == 1
     np.testing.assert_array_equal(valid, [True, False, False])  # equal scores: the lower index stays
+
+
+def _stamp_reference(cx, cy, radius, cs, grid, pad):
+    """`stamp` as it was before 0079 (one loop over the disc's offsets per centre), in float32 as the kernel."""
+    GH, GW = grid.shape
+    gh, gw = GH - 2 * pad, GW - 2 * pad
+    grid[:, :] = -1
+    n = len(cx)
+    rr = min(int(np.ceil(radius / cs)) + 1, pad - 1)
+    lim = (radius + cs) ** 2
+    offs = [(ox, oy) for oy in range(-rr, rr + 1) for ox in range(-rr, rr + 1) if np.float64(ox * ox + oy * oy) * cs * cs <= lim]
+    lo, hix, hiy = 1 - pad + rr, gw + pad - rr - 2, gh + pad - rr - 2
+    c0x, c0y, fx, fy = [0] * n, [0] * n, [np.float32(0)] * n, [np.float32(0)] * n
+    for i in range(n):
+        ccx, ccy = cx[i] / cs, cy[i] / cs
+        c0x[i], c0y[i] = min(max(int(ccx), lo), hix), min(max(int(ccy), lo), hiy)
+        fx[i], fy[i] = np.float32(ccx - c0x[i] - 0.5), np.float32(ccy - c0y[i] - 0.5)
+        for ox, oy in offs:
+            dx, dy = np.float32(ox) - fx[i], np.float32(oy) - fy[i]
+            d2 = dx * dx + dy * dy
+            r, c = c0y[i] + pad + oy, c0x[i] + pad + ox
+            o = grid[r, c]
+            if o >= 0:
+                odx, ody = np.float32(c - pad - c0x[o]) - fx[o], np.float32(r - pad - c0y[o]) - fy[o]
+                if d2 > odx * odx + ody * ody:
+                    continue
+            grid[r, c] = i
+
+
+@pytest.mark.parametrize("radius", [1.3, 4.27, 8.48])
+def test_stamp_by_rows_equals_the_offset_loop(radius):
+    rng = np.random.default_rng(int(radius * 100))
+    cs, pad = 2.0, 16
+    grid = np.empty((40 + 2 * pad, 50 + 2 * pad), np.int32)
+    ref = grid.copy()
+    n = 150  # dense enough that discs overlap and owners are compared; some centres off the image
+    cx = rng.uniform(-10, 110, n)
+    cy = rng.uniform(-10, 90, n)
+    cx[:5] = np.round(cx[:5]) + 1.0  # centres on cell corners: exact distance ties
+    cy[:5] = np.round(cy[:5]) + 1.0
+    k.stamp(cx, cy, radius, cs, grid, pad)
+    _stamp_reference(cx, cy, radius, cs, ref, pad)
+    np.testing.assert_array_equal(grid, ref)
+    assert len(np.unique(grid[grid >= 0])) > n // 2
