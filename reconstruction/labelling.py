@@ -603,7 +603,7 @@ def _nearest_within(q: np.ndarray, pts: np.ndarray, radius: float) -> tuple[np.n
 
 def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model: RigModel, depth_range_mm,
                     radius_px: float, trim_px: float, options: TraceOptions, grid: tuple | None = None,
-                    rounds: int | None = None) -> int:
+                    rounds: int | None = None, state: dict | None = None) -> int:
     """Label unseeded trace pieces from the crossings at their ends (TraceOptions.cross_pieces).
 
     Every piece ends at a crossing's gap (the mixing zone is cut out of the traces). Where a labelled
@@ -624,14 +624,16 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
     total = 0
     sin_min = float(np.sin(np.deg2rad(20)))
     # Each piece end's nearest labelled sample of the other family, its crossing's line and junction, kept
-    # from round to round ([side·n_pieces + piece]): labels are only added, so in a later round an end's
-    # nearest candidate changes only where a sample labelled in the round before is nearer; only those
-    # ends are searched and checked again (decision 0078; the same results as a full search every round).
-    bd_p = np.full(2 * n_pieces, np.inf)
-    bk_p = np.full(2 * n_pieces, -1, np.intp)
-    k_end_p = np.full(2 * n_pieces, UNLABELLED, np.int64)
-    jid_end_p = np.full(2 * n_pieces, -1, np.int64)
-    new_s = None
+    # from round to round ([side·n_pieces + piece]), and which samples were labelled when they were found:
+    # labels are only added (here, by the continuation, by nothing else in between), so later an end's
+    # nearest candidate changes only where a sample labelled since is nearer; only those ends are searched
+    # and checked again (decision 0078; the same results as a full search every round). `state` carries
+    # this from the rounds before the continuation to the round after it (same grid, radius and options).
+    st = {} if state is None else state
+    if not st or len(st["bd"]) != 2 * n_pieces:
+        st.clear()
+        st.update(bd=np.full(2 * n_pieces, np.inf), bk=np.full(2 * n_pieces, -1, np.intp),
+                  k_end=np.full(2 * n_pieces, UNLABELLED, np.int64), jid_end=np.full(2 * n_pieces, -1, np.int64), seen=None)
     for _ in range(options.cross_rounds if rounds is None else rounds):
         todo, e, te, sign, fe, first, last = _k.cross_round_ends(q, sid, piece, tangent, fam, index, n_pieces,
                                                                 int(options.cross_min_samples))
@@ -639,17 +641,19 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
         if nt == 0:
             break
         keys = np.concatenate([todo, todo + n_pieces])
-        if new_s is None:
+        labelled_now = np.isfinite(index)
+        if st["seen"] is None:
             bd, bk = _k.crossing_nearest(e, fe, q, fam, index, True, float(radius_px), *grid)
             redo = np.arange(2 * nt)
             k_end = np.full(2 * nt, UNLABELLED, np.int64)
             jid_end = np.full(2 * nt, -1, np.int64)
         else:
-            bd = bd_p[keys]
-            bk = bk_p[keys]
+            bd = st["bd"][keys]
+            bk = st["bk"][keys]
+            new_s = np.flatnonzero(labelled_now & ~st["seen"])
             redo = np.flatnonzero(_k.crossing_nearest_update(e, fe, q, fam, grid[7], new_s, float(radius_px), bd, bk))
-            k_end = k_end_p[keys]
-            jid_end = jid_end_p[keys]
+            k_end = st["k_end"][keys]
+            jid_end = st["jid_end"][keys]
             k_end[redo] = UNLABELLED
             jid_end[redo] = -1
         o, c = _k.crossing_test(e[redo], te[redo], sign[redo], bk[redo], q, sid, tangent, float(radius_px), sin_min)
@@ -664,10 +668,11 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
             good = (res <= options.cross_residual_px) & (z >= depth_range_mm[0]) & (z <= depth_range_mm[1])
             k_end[sel[good]] = kk[good]
             jid_end[sel[good]] = seed_jid[sid[o[good]]]
-        bd_p[keys] = bd
-        bk_p[keys] = bk
-        k_end_p[keys] = k_end
-        jid_end_p[keys] = jid_end
+        st["bd"][keys] = bd
+        st["bk"][keys] = bk
+        st["k_end"][keys] = k_end
+        st["jid_end"][keys] = jid_end
+        st["seen"] = labelled_now
         # the pieces' ends next to the crossings are left out: the other line's profile pulls the ridge
         taken, written = _k.cross_round_write(todo, k_end, jid_end, bool(options.cross_both_ends), UNLABELLED, first, last,
                                               ts_all, sid, float(trim_px), index, seed_jid)
@@ -676,7 +681,6 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
             # see the same index and repeat this one exactly (decision 0078)
             break
         total += int(written)
-        new_s = _k.samples_labelled_in(todo, first, last, sid, index)
     return total
 
 
@@ -837,10 +841,12 @@ def label_samples(
                 reach_cont = max(reach_cont, cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                      min_angle_deg=options.continue_gap_deg))
             grid = _sample_grid(q, valid, sid, model.junction_step_cam_px * max(options.cross_radius, options.continue_reach))
+        cross_state: dict = {}  # the crossing searches' results, carried to the round after the continuation
         if options.cross_pieces and model is not None:
             stats["samples_from_crossings"] = _crossing_seeds(
                 q, fam, sid, piece, ts, tangent, index, seed_jid, model, depth_range_mm,
-                options.cross_radius * model.junction_step_cam_px, options.cross_trim_sigma * sigma_px, options, grid)
+                options.cross_radius * model.junction_step_cam_px, options.cross_trim_sigma * sigma_px, options, grid,
+                state=cross_state)
         if options.continue_lines and model is not None:
             cont = continue_lines(q, fam, sid, piece, ts, tangent, index, seed_jid, valid, model=model, depth_range_mm=depth_range_mm,
                                   reach_px=reach_cont, check_radius_px=options.continue_reach * model.junction_step_cam_px,
@@ -854,7 +860,7 @@ def label_samples(
                 stats["samples_from_crossings_after"] = _crossing_seeds(
                     q, fam, sid, piece, ts, tangent, index, seed_jid, model, depth_range_mm,
                     options.cross_radius * model.junction_step_cam_px, options.cross_trim_sigma * sigma_px,
-                    options, grid, rounds=options.cross_rounds_after)
+                    options, grid, rounds=options.cross_rounds_after, state=cross_state)
         if (options.cross_pieces or options.continue_lines) and model is not None:
             got = np.isfinite(index[sid])
         stats["samples_unseeded"] = int((~got).sum())
