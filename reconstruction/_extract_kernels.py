@@ -1027,11 +1027,21 @@ def chord_stats_ends(seg, segment_ends, q_junction, qx, qy, S):
 @njit
 def ordered_seeds(xu, xv, xs, seed):
     """The crossing candidates flagged in `seed`, weakest first (a stable sort by xs: ties keep their
-    scan order, as `np.argsort(kind="stable")`): positions (k, 2) float64 (xu, xv) and scores (k,) float32."""
+    scan order, as `np.argsort(kind="stable")`): positions (k, 2) float64 (xu, xv) and scores (k,) float32.
+    The sort is numba's quicksort, then each run of equal scores put back into index order (the stable
+    order is the one by (score, index); decision 0079)."""
     idx = np.nonzero(seed)[0]
     sc = xs[idx]
-    order = np.argsort(sc, kind="mergesort")  # stable: the one order NumPy's stable sort gives
+    order = np.argsort(sc)
     k = len(idx)
+    t = 0
+    while t < k:
+        e = t + 1
+        while e < k and sc[order[e]] == sc[order[t]]:
+            e += 1
+        if e - t > 1:
+            order[t:e] = np.sort(order[t:e])
+        t = e
     out = np.empty((k, 2))
     score = np.empty(k, np.float32)
     for t in range(k):
@@ -1086,7 +1096,8 @@ def drop_duplicates(valid, qj, score):
     """Two candidates on one crossing converge to one intersection: among the valid junctions whose
     rint(qj / 2) cells are equal, keep the one with the highest score (ties: the lower index) and clear
     `valid` (in place) for the others — the set `np.lexsort((−score, key_y, key_x))` marked as duplicates
-    before (decision 0079). Returns their number."""
+    before (decision 0079): the groups come from one sort by the cell, the rule picks lexsort's first.
+    Returns their number."""
     vid = np.nonzero(valid)[0]
     n = len(vid)
     if n <= 1:
@@ -1096,24 +1107,27 @@ def drop_duplicates(valid, qj, score):
     for t in range(n):
         kx[t] = np.int64(np.rint(qj[vid[t], 0] / 2.0))
         ky[t] = np.int64(np.rint(qj[vid[t], 1] / 2.0))
-    o1 = np.argsort(ky, kind="mergesort")  # stable sorts: by x, then y, then the index
-    o2 = np.argsort(kx[o1], kind="mergesort")
-    order = o1[o2]
+    lo_y = ky.min()
+    key = (kx - kx.min()) * (ky.max() - lo_y + 1) + (ky - lo_y)  # one integer per cell
+    order = np.argsort(key)
     n_dup = 0
     t = 0
     while t < n:
         e = t + 1
-        while e < n and kx[order[e]] == kx[order[t]] and ky[order[e]] == ky[order[t]]:
+        while e < n and key[order[e]] == key[order[t]]:
             e += 1
-        best = order[t]
-        for q in range(t + 1, e):
-            c = order[q]
-            if score[vid[c]] > score[vid[best]]:  # ties keep the lower index (the earlier in order)
-                best = c
-        for q in range(t, e):
-            c = order[q]
-            if c != best:
-                valid[vid[c]] = False
-                n_dup += 1
+        if e - t > 1:
+            best = order[t]
+            for q in range(t + 1, e):
+                c = order[q]
+                sc = score[vid[c]]
+                sb = score[vid[best]]
+                if (sc > sb) | ((sc == sb) & (c < best)):
+                    best = c
+            for q in range(t, e):
+                c = order[q]
+                if c != best:
+                    valid[vid[c]] = False
+                    n_dup += 1
         t = e
     return n_dup
