@@ -1395,24 +1395,42 @@ def crossing_test(e, te, sign, bk, q, sid, tangent, radius, sin_min):
 
 
 @njit
-def samples_labelled_in(todo, first, last, sid, index):
-    """Sample ids with a finite index on the pieces todo (trace positions first[p]..last[p]), in trace
-    order: after a crossing round, the samples it labelled (the pieces had none before)."""
-    n = 0
-    for a in range(todo.shape[0]):
-        p = todo[a]
-        for k in range(first[p], last[p] + 1):
-            if math.isfinite(index[sid[k]]):
-                n += 1
-    out = np.empty(n, np.intp)
-    n = 0
-    for a in range(todo.shape[0]):
-        p = todo[a]
-        for k in range(first[p], last[p] + 1):
-            if math.isfinite(index[sid[k]]):
-                out[n] = sid[k]
-                n += 1
-    return out
+def cross_round_ends_after(todo_prev, new_s, pos_of, piece, first, last, q, sid, tangent, fam):
+    """`cross_round_ends` for a later round (decision 0078), from the pieces to do at the round before
+    (todo_prev, increasing) and the samples labelled since (new_s): a piece stays to do unless one of them
+    lies on it (pieces never lose labels; their length and ends do not change). Returns todo, e, te, sign, fe
+    as cross_round_ends (first and last are that call's)."""
+    npc = first.shape[0]
+    gone = np.zeros(npc, np.bool_)
+    for a in range(new_s.shape[0]):
+        k = pos_of[new_s[a]]
+        if k >= 0:
+            gone[piece[k]] = True
+    nt = 0
+    for a in range(todo_prev.shape[0]):
+        if not gone[todo_prev[a]]:
+            nt += 1
+    todo = np.empty(nt, np.intp)
+    c = 0
+    for a in range(todo_prev.shape[0]):
+        if not gone[todo_prev[a]]:
+            todo[c] = todo_prev[a]
+            c += 1
+    e = np.empty((2 * nt, 2))
+    te = np.empty((2 * nt, 2))
+    sign = np.empty(2 * nt)
+    fe = np.empty(2 * nt, np.int64)
+    for a in range(nt):
+        for side in range(2):
+            k = first[todo[a]] if side == 0 else last[todo[a]]
+            r = side * nt + a
+            e[r, 0] = q[sid[k], 0]
+            e[r, 1] = q[sid[k], 1]
+            te[r, 0] = tangent[k, 0]
+            te[r, 1] = tangent[k, 1]
+            sign[r] = -1.0 if side == 0 else 1.0
+            fe[r] = fam[sid[k]]
+    return todo, e, te, sign, fe
 
 
 # --- label_epipolar: offsets of one component ----------------------------------------------------------------

@@ -635,13 +635,20 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
         st.update(bd=np.full(2 * n_pieces, np.inf), bk=np.full(2 * n_pieces, -1, np.intp),
                   k_end=np.full(2 * n_pieces, UNLABELLED, np.int64), jid_end=np.full(2 * n_pieces, -1, np.int64), seen=None)
     for _ in range(options.cross_rounds if rounds is None else rounds):
-        todo, e, te, sign, fe, first, last = _k.cross_round_ends(q, sid, piece, tangent, fam, index, n_pieces,
-                                                                int(options.cross_min_samples))
+        labelled_now = np.isfinite(index)
+        if st["seen"] is None:
+            todo, e, te, sign, fe, first, last = _k.cross_round_ends(q, sid, piece, tangent, fam, index, n_pieces,
+                                                                    int(options.cross_min_samples))
+            st["first"], st["last"] = first, last
+        else:
+            # the pieces to do: those of the search before without a sample labelled since
+            new_s = np.flatnonzero(labelled_now & ~st["seen"])
+            first, last = st["first"], st["last"]
+            todo, e, te, sign, fe = _k.cross_round_ends_after(st["todo"], new_s, grid[7], piece, first, last, q, sid, tangent, fam)
         nt = len(todo)
         if nt == 0:
             break
         keys = np.concatenate([todo, todo + n_pieces])
-        labelled_now = np.isfinite(index)
         if st["seen"] is None:
             bd, bk = _k.crossing_nearest(e, fe, q, fam, index, True, float(radius_px), *grid)
             redo = np.arange(2 * nt)
@@ -650,7 +657,6 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
         else:
             bd = st["bd"][keys]
             bk = st["bk"][keys]
-            new_s = np.flatnonzero(labelled_now & ~st["seen"])
             redo = np.flatnonzero(_k.crossing_nearest_update(e, fe, q, fam, grid[7], new_s, float(radius_px), bd, bk))
             k_end = st["k_end"][keys]
             jid_end = st["jid_end"][keys]
@@ -673,6 +679,7 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
         st["k_end"][keys] = k_end
         st["jid_end"][keys] = jid_end
         st["seen"] = labelled_now
+        st["todo"] = todo
         # the pieces' ends next to the crossings are left out: the other line's profile pulls the ridge
         taken, written = _k.cross_round_write(todo, k_end, jid_end, bool(options.cross_both_ends), UNLABELLED, first, last,
                                               ts_all, sid, float(trim_px), index, seed_jid)

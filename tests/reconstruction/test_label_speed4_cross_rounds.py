@@ -165,3 +165,30 @@ def test_label_samples_equal_the_former_round_loop(no_junctions_inside, monkeypa
     assert new.stats == ref.stats
     # later rounds ran after a round that wrote samples (so the updated search was used)
     assert sum(w > 0 for w in REF_ROUNDS) >= writing_rounds and len(REF_ROUNDS) >= 2 and REF_ROUNDS[0] > 0, REF_ROUNDS
+
+
+def test_round_ends_after_equal_a_new_scan():
+    rng = np.random.default_rng(31)
+    for _ in range(5):
+        P = 3000
+        q = rng.uniform(0, 300, (P, 2))
+        fam = rng.integers(1, 3, P).astype(np.intp)
+        sid = rng.permutation(P)[:2700].astype(np.intp)
+        n = len(sid)
+        piece = np.sort(rng.integers(0, 500, n))
+        piece = np.unique(piece, return_inverse=True)[1].astype(np.int64)
+        n_pieces = int(piece[-1]) + 1
+        a = rng.uniform(0, np.pi, n)
+        tangent = np.column_stack([np.cos(a), np.sin(a)])
+        index = np.full(P, np.nan)
+        index[sid[rng.random(n) < 0.05]] = 2.0
+        todo, e, te, sign, fe, first, last = K.cross_round_ends(q, sid, piece, tangent, fam, index, n_pieces, 3)
+        pos_of = np.full(P, -1, np.intp)
+        pos_of[sid] = np.arange(n)
+        new_s = np.flatnonzero(~np.isfinite(index) & (rng.random(P) < 0.02))  # some off the traces
+        index[new_s] = 1.0
+        ref = K.cross_round_ends(q, sid, piece, tangent, fam, index, n_pieces, 3)
+        got = K.cross_round_ends_after(todo, new_s.astype(np.intp), pos_of, piece, first, last, q, sid, tangent, fam)
+        for x, y in zip(got, ref[:5]):
+            np.testing.assert_array_equal(x, y)
+        assert 0 < len(ref[0]) < len(todo)
