@@ -49,6 +49,7 @@ import cv2
 import numpy as np
 
 from reconstruction import _extract_kernels as _k
+from reconstruction.anisotropy import arms_by_family, family_steps_at
 from reconstruction.rigmodel import RigModel
 
 
@@ -75,6 +76,12 @@ class ExtractOptions:
         on average (more: the line jumps sideways at the crossing, a depth edge).
     free_end_trim_sigma: samples within this many smoothing scales of a segment end that reaches no
         crossing are left out of their segment (the cut line's ridge is biased there); 0: keep them.
+    arm_step_share: a junction's arms reach this share of the junction spacing.
+    arms_per_family: the arms of each family reach `arm_step_share` of the spacing the calibration predicts
+        along that family at the candidate (`reconstruction.anisotropy`), never more than the one-step
+        radius (decision 0077); False: the one-step radius for both.
+    arm_free_end_trim: leave the samples within `free_end_trim_sigma` smoothing scales of a free segment end
+        out of the junction's arm fits too (decision 0077; only with `arms_per_family`).
     downsample_sigma_px: smoothing scales at or above this are computed on a half-resolution image
         (wide lines; the samples are still about two camera pixels apart).
     """
@@ -91,6 +98,9 @@ class ExtractOptions:
     downsample_sigma_px: float = 2.6
     max_arm_turn_deg: float = 9.0
     free_end_trim_sigma: float = 2.0
+    arm_step_share: float = 0.6
+    arms_per_family: bool = True
+    arm_free_end_trim: bool = True
     debug: bool = False
 
 
@@ -288,7 +298,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     cell = float(max(1.5, 0.2 * step))
     r0 = float(np.clip(1.6 * s_w + 0.5, 1.5, 0.3 * step))  # core: the crossing biases the ridge there
     r_att = float(min(r0 + 1.5 * s_w + 2.0, 0.45 * step + 1.0))  # a line reaching this close meets the crossing
-    R = float(max(0.6 * step, r_att + 1.0))  # arms (further bounded by the neighbouring junctions)
+    R = float(max(options.arm_step_share * step, r_att + 1.0))  # arms (further bounded by the neighbouring junctions)
     gh, gw = int(Hw / cell) + 1, int(Ww / cell) + 1
     seed = _k.crossing_seeds(xu, xv, xs, cell, gh, gw)
     if options.debug:
@@ -374,7 +384,13 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
 
     # --- 4b. junctions: line fits on the arms (the segments reaching a crossing), intersected -------------
     arm_of = np.full(P, -1, np.intp)
-    if S and ns:
+    if S and ns and options.arms_per_family:
+        # anisotropic grids: the arm along each family stays short of that family's next crossing (0077)
+        R_fam = np.minimum(options.arm_step_share / scale * family_steps_at(model, seeds * scale), R)
+        R_fam = np.maximum(R_fam, r_att + 1.0).astype(np.float32)
+        d_arm_trim = options.free_end_trim_sigma * s_w if options.arm_free_end_trim else -1.0
+        arm_of = arms_by_family(sidx, sg, sproj, smin, smax, seg_seed, fam, qx32, qy32, seeds_x32, seeds_y32, R_fam, d_arm_trim, P)
+    elif S and ns:
         arm_of = _k.arms(sidx, sg, sproj, smin, smax, seg_seed, qx32, qy32, seeds_x32, seeds_y32, np.float32(R), P)
     valid = np.zeros(ns, bool)
     qj = np.full((ns, 2), np.nan)
@@ -437,6 +453,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         stats["debug_core"] = core
         stats["debug_candidates"] = seeds * scale
         stats["debug_valid"] = valid.copy()
+        stats["debug_arm_of"] = arm_of.copy()
     new_id = np.full(ns + 1, -1, np.int64)
     new_id[:ns][valid] = np.arange(int(valid.sum()))
     q_junction = qj[valid]
