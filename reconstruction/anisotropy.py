@@ -98,3 +98,48 @@ def arms_by_family(sidx, sg, sproj, smin, smax, seg_seed, fam, qx, qy, sx32, sy3
         if np.float32(math.sqrt(dx * dx + dy * dy)) <= R_fam32[pick, fam[i] - 1]:
             arm_of[i] = pick
     return arm_of
+
+
+def _bent(fits: tuple, ns: int, *, rms_tol: float, sin_tol: float) -> np.ndarray:
+    """(ns,) bool: a family's arm fit is not straight (the extraction's crooked, jump and turn tests)."""
+    _, _, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin = fits
+    return ((rms.reshape(ns, 2) > rms_tol) | (np.abs(m_neg - m_pos).reshape(ns, 2) > rms_tol)
+            | (mean_sin.reshape(ns, 2) > sin_tol)).any(axis=1)
+
+
+def _usable(fits: tuple, ns: int) -> np.ndarray:
+    """(ns,) bool: both families' arms have ≥ 3 samples and samples on both sides of the candidate."""
+    _, _, _, cnt, n_neg, n_pos, _, _, _ = fits
+    return ((cnt.reshape(ns, 2) >= 3) & (n_neg.reshape(ns, 2) >= 1) & (n_pos.reshape(ns, 2) >= 1)).all(axis=1)
+
+
+def retry_trimmed_arms(fits: tuple, arm_of: np.ndarray, arm_args: tuple, R_fam32: np.ndarray, d_trim: float, fit_args: tuple,
+                       *, rms_tol: float, sin_tol: float) -> tuple[tuple, np.ndarray, int]:
+    """Candidates whose arm fits are bent (crooked, a sideways jump or a turn) fitted again without the arm
+    samples within d_trim of a free segment end (a line cut by a silhouette or a shadow: its ridge bends
+    there, decision 0059). Where those arms are straight and still run through the candidate (≥ 3 samples
+    per family, samples on both sides), their fits replace the first ones; other candidates keep theirs.
+
+    fits: `_extract_kernels.junction_fits`' 9 arrays (rows 2·k + family − 1); arm_of (P,): the arms;
+    arm_args: (sidx, sg, sproj, smin, smax, seg_seed, fam, qx, qy, sx32, sy32) for `arms_by_family`;
+    fit_args: the arguments of `junction_fits` after arm_of. Returns the merged fits, the merged arm_of
+    and how many candidates took the trimmed arms."""
+    ns = len(R_fam32)
+    bent = _bent(fits, ns, rms_tol=rms_tol, sin_tol=sin_tol) & _usable(fits, ns)
+    if not bent.any():
+        return fits, arm_of, 0
+    R_retry = np.where(bent[:, None], R_fam32, np.float32(-1.0)).astype(np.float32)
+    P = len(arm_of)
+    arm_t = arms_by_family(*arm_args, R_retry, d_trim, P)
+    from reconstruction._extract_kernels import junction_fits
+
+    fits_t = junction_fits(arm_t, *fit_args)
+    take = bent & _usable(fits_t, ns) & ~_bent(fits_t, ns, rms_tol=rms_tol, sin_tol=sin_tol)
+    if not take.any():
+        return fits, arm_of, 0
+    rows = np.repeat(take, 2)
+    merged = tuple(np.where(rows.reshape((-1,) + (1,) * (a.ndim - 1)), b, a) for a, b in zip(fits, fits_t))
+    arm_new = arm_of.copy()
+    moved = (arm_of >= 0) & take[np.maximum(arm_of, 0)]
+    arm_new[moved] = arm_t[moved]
+    return merged, arm_new, int(take.sum())

@@ -49,7 +49,7 @@ import cv2
 import numpy as np
 
 from reconstruction import _extract_kernels as _k
-from reconstruction.anisotropy import arms_by_family, family_steps_at
+from reconstruction.anisotropy import arms_by_family, family_steps_at, retry_trimmed_arms
 from reconstruction.rigmodel import RigModel
 
 
@@ -80,8 +80,10 @@ class ExtractOptions:
     arms_per_family: the arms of each family reach `arm_step_share` of the spacing the calibration predicts
         along that family at the candidate (`reconstruction.anisotropy`), never more than the one-step
         radius (decision 0077); False: the one-step radius for both.
-    arm_free_end_trim: leave the samples within `free_end_trim_sigma` smoothing scales of a free segment end
-        out of the junction's arm fits too (decision 0077; only with `arms_per_family`).
+    arm_free_end_trim: a candidate whose arms are bent (crooked, jump, turn) is fitted again without the
+        samples within `free_end_trim_sigma` smoothing scales of a free segment end (a silhouette or shadow
+        cuts the line there); kept if those arms are straight and run through it (decision 0077; only with
+        `arms_per_family`).
     downsample_sigma_px: smoothing scales at or above this are computed on a half-resolution image
         (wide lines; the samples are still about two camera pixels apart).
     """
@@ -388,8 +390,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         # anisotropic grids: the arm along each family stays short of that family's next crossing (0077)
         R_fam = np.minimum(options.arm_step_share / scale * family_steps_at(model, seeds * scale), R)
         R_fam = np.maximum(R_fam, r_att + 1.0).astype(np.float32)
-        d_arm_trim = options.free_end_trim_sigma * s_w if options.arm_free_end_trim else -1.0
-        arm_of = arms_by_family(sidx, sg, sproj, smin, smax, seg_seed, fam, qx32, qy32, seeds_x32, seeds_y32, R_fam, d_arm_trim, P)
+        arm_of = arms_by_family(sidx, sg, sproj, smin, smax, seg_seed, fam, qx32, qy32, seeds_x32, seeds_y32, R_fam, -1.0, P)
     elif S and ns:
         arm_of = _k.arms(sidx, sg, sproj, smin, smax, seg_seed, qx32, qy32, seeds_x32, seeds_y32, np.float32(R), P)
     valid = np.zeros(ns, bool)
@@ -399,6 +400,14 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     rms_j = np.zeros((ns, 2))
     if ns:
         cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin = _k.junction_fits(arm_of, fam, qx32, qy32, nx32, ny32, seeds_x, seeds_y, ns)
+        if options.arms_per_family and options.arm_free_end_trim:
+            # bent arms: fitted again without the samples next to a free segment end, where a silhouette or
+            # a shadow cuts the line and its ridge bends (0077)
+            (cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin), arm_of, stats["junctions_arms_trimmed"] = retry_trimmed_arms(
+                (cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin), arm_of,
+                (sidx, sg, sproj, smin, smax, seg_seed, fam, qx32, qy32, seeds_x32, seeds_y32), R_fam,
+                options.free_end_trim_sigma * s_w, (fam, qx32, qy32, nx32, ny32, seeds_x, seeds_y, ns),
+                rms_tol=options.max_segment_rms_px / scale, sin_tol=float(np.sin(np.deg2rad(options.max_arm_turn_deg))))
         n_neg, n_pos = n_neg.reshape(ns, 2), n_pos.reshape(ns, 2)
         # a line that jumps sideways at the crossing (a depth edge: two surfaces' lines meeting) is no
         # crossing: compare the mean signed offsets from the fit on both sides
