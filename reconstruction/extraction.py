@@ -49,7 +49,7 @@ import cv2
 import numpy as np
 
 from reconstruction import _extract_kernels as _k
-from reconstruction.anisotropy import arms_by_family, family_steps_at, retry_trimmed_arms
+from reconstruction.junction_arms import retry_trimmed_arms
 from reconstruction.rigmodel import RigModel
 
 
@@ -76,14 +76,9 @@ class ExtractOptions:
         on average (more: the line jumps sideways at the crossing, a depth edge).
     free_end_trim_sigma: samples within this many smoothing scales of a segment end that reaches no
         crossing are left out of their segment (the cut line's ridge is biased there); 0: keep them.
-    arm_step_share: a junction's arms reach this share of the junction spacing.
-    arms_per_family: the arms of each family reach `arm_step_share` of the spacing the calibration predicts
-        along that family at the candidate (`reconstruction.anisotropy`), never more than the one-step
-        radius (decision 0077); False: the one-step radius for both.
     arm_free_end_trim: a candidate whose arms are bent (crooked, jump, turn) is fitted again without the
         samples within `free_end_trim_sigma` smoothing scales of a free segment end (a silhouette or shadow
-        cuts the line there); kept if those arms are straight and run through it (decision 0077; only with
-        `arms_per_family`).
+        cuts the line there); kept if those arms are straight and run through it (decision 0077).
     downsample_sigma_px: smoothing scales at or above this are computed on a half-resolution image
         (wide lines; the samples are still about two camera pixels apart).
     """
@@ -100,8 +95,6 @@ class ExtractOptions:
     downsample_sigma_px: float = 2.6
     max_arm_turn_deg: float = 9.0
     free_end_trim_sigma: float = 2.0
-    arm_step_share: float = 0.6
-    arms_per_family: bool = True
     arm_free_end_trim: bool = True
     debug: bool = False
 
@@ -300,7 +293,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     cell = float(max(1.5, 0.2 * step))
     r0 = float(np.clip(1.6 * s_w + 0.5, 1.5, 0.3 * step))  # core: the crossing biases the ridge there
     r_att = float(min(r0 + 1.5 * s_w + 2.0, 0.45 * step + 1.0))  # a line reaching this close meets the crossing
-    R = float(max(options.arm_step_share * step, r_att + 1.0))  # arms (further bounded by the neighbouring junctions)
+    R = float(max(0.6 * step, r_att + 1.0))  # arms (further bounded by the neighbouring junctions)
     gh, gw = int(Hw / cell) + 1, int(Ww / cell) + 1
     seed = _k.crossing_seeds(xu, xv, xs, cell, gh, gw)
     if options.debug:
@@ -386,12 +379,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
 
     # --- 4b. junctions: line fits on the arms (the segments reaching a crossing), intersected -------------
     arm_of = np.full(P, -1, np.intp)
-    if S and ns and options.arms_per_family:
-        # anisotropic grids: the arm along each family stays short of that family's next crossing (0077)
-        R_fam = np.minimum(options.arm_step_share / scale * family_steps_at(model, seeds * scale), R)
-        R_fam = np.maximum(R_fam, r_att + 1.0).astype(np.float32)
-        arm_of = arms_by_family(sidx, sg, sproj, smin, smax, seg_seed, fam, qx32, qy32, seeds_x32, seeds_y32, R_fam, -1.0, P)
-    elif S and ns:
+    if S and ns:
         arm_of = _k.arms(sidx, sg, sproj, smin, smax, seg_seed, qx32, qy32, seeds_x32, seeds_y32, np.float32(R), P)
     valid = np.zeros(ns, bool)
     qj = np.full((ns, 2), np.nan)
@@ -400,13 +388,12 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     rms_j = np.zeros((ns, 2))
     if ns:
         cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin = _k.junction_fits(arm_of, fam, qx32, qy32, nx32, ny32, seeds_x, seeds_y, ns)
-        if options.arms_per_family and options.arm_free_end_trim:
+        if options.arm_free_end_trim and options.free_end_trim_sigma > 0:
             # bent arms: fitted again without the samples next to a free segment end, where a silhouette or
-            # a shadow cuts the line and its ridge bends (0077)
-            (cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin), arm_of, stats["junctions_arms_trimmed"] = retry_trimmed_arms(
-                (cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin), arm_of,
-                (sidx, sg, sproj, smin, smax, seg_seed, fam, qx32, qy32, seeds_x32, seeds_y32), R_fam,
-                options.free_end_trim_sigma * s_w, (fam, qx32, qy32, nx32, ny32, seeds_x, seeds_y, ns),
+            # a shadow cuts the line and its ridge bends (decision 0077); the fits are replaced in place
+            stats["junctions_arms_trimmed"] = retry_trimmed_arms(
+                (cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin), arm_of, (sidx, sg, sproj, smin, smax, seg_seed),
+                options.free_end_trim_sigma * s_w, (fam, qx32, qy32, nx32, ny32), (seeds_x, seeds_y),
                 rms_tol=options.max_segment_rms_px / scale, sin_tol=float(np.sin(np.deg2rad(options.max_arm_turn_deg))))
         n_neg, n_pos = n_neg.reshape(ns, 2), n_pos.reshape(ns, 2)
         # a line that jumps sideways at the crossing (a depth edge: two surfaces' lines meeting) is no

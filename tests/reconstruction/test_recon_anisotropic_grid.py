@@ -1,5 +1,5 @@
-"""Junctions of wide-line grids next to a silhouette or shadow cut (decision 0077): the arms per family and the
-refit of bent arms without the samples next to a free segment end.
+"""Junctions of wide-line grids next to a silhouette or shadow cut (decision 0077): the refit of bent arms
+without the samples next to a free segment end.
 
 The camera sees the projector image itself (analytic lines and junctions), wide lines (12 px: the
 half-resolution path of decision 0068, as on the paper's rigs), dark beyond a slanted shadow edge; a junction
@@ -12,12 +12,11 @@ import numpy as np
 import pytest
 
 from calibration.models import Intrinsics, ProCam
-from reconstruction.anisotropy import family_steps_at
 from reconstruction.extraction import ExtractOptions, extract_grid
 from reconstruction.patterns import GridPattern
 from reconstruction.rigmodel import rig_model
 
-_OLD = ExtractOptions(arms_per_family=False)  # before decision 0077
+_OLD = ExtractOptions(arm_free_end_trim=False)  # before decision 0077
 
 
 def _rig():
@@ -98,19 +97,3 @@ def test_a_crossing_cut_by_the_edge_stays_out(slope, near, shift):
         assert len(i) > 10
         assert k not in i
         assert (d_edge_all[i] < -pattern.line_width_px).all(), d_edge_all[i].max()
-
-
-def test_family_steps_follow_the_anisotropy():
-    """A camera that sees the projector image stretched ×2 along u: the spacing along each family is the
-    analytic one (p/|n2 − n1| times the stretched direction's length)."""
-    K_c = np.array([[1600.0, 0, 639.5], [0, 800.0, 239.5], [0, 0, 1]])
-    K_p = np.array([[800.0, 0, 319.5], [0, 800.0, 239.5], [0, 0, 1]])
-    procam = ProCam(Intrinsics(1280, 480, K_c), Intrinsics(640, 480, K_p), np.eye(3), np.array([1.0, 0.5, 0.0]))
-    pattern = GridPattern(alpha1_deg=30.0, alpha2_deg=120.0, pitch_px=40.0, lines=9, line_width_px=3.0, centre_px=(320.3, 240.7))
-    model = rig_model(procam, pattern, (900.0, 1100.0))
-    steps = family_steps_at(model, np.array([[640.0, 240.0], [300.0, 100.0]]))
-    n1, n2 = pattern.n1, pattern.n2
-    along = 40.0 / abs(n2 - n1)
-    expect = [np.hypot(2.0, n1) * along, np.hypot(2.0, n2) * along]  # (1, n) in the projector -> (2, n) in the camera
-    np.testing.assert_allclose(steps, [expect, expect], rtol=2e-3)
-    assert steps[0, 1] > 1.2 * steps[0, 0]  # the j-lines' crossings are farther apart here
