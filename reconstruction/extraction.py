@@ -1,7 +1,7 @@
 """Grid extraction: sub-pixel line centres, the two line families, junctions and their connectivity.
 
 One camera image in, a `GridObservation` out (camera pixels, (u, v), pixel (0, 0) = centre of the
-top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055–0059, 0068):
+top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055–0059, 0068, 0077):
 
 1. Smoothing with a Gaussian of σ = 0.4 × the line width the calibration predicts (one separable float32
    filter over the image; lines wider than ~6 px are processed at half resolution after `cv2.pyrDown`).
