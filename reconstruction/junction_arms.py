@@ -47,6 +47,18 @@ def _trimmed_arm_samples(sidx, sg, sproj, smin, smax, seg_seed, arm_of, retry, d
     """The arm samples of the candidates flagged in `retry`: those farther than d_trim (px along the
     segment) from every free end of their segment (kept), and the others (dropped); ids in
     segment-sample order."""
+    # only segments with a free end and the other end at a retried candidate can lose samples
+    S = len(seg_seed)
+    free = np.zeros(S, np.bool_)
+    any_free = False
+    for g in range(S):
+        a0 = seg_seed[g, 0]
+        a1 = seg_seed[g, 1]
+        if (a0 < 0 and a1 >= 0 and retry[a1]) or (a1 < 0 and a0 >= 0 and retry[a0]):
+            free[g] = True
+            any_free = True
+    if not any_free:
+        return np.empty(0, np.int64), np.empty(0, np.int64)
     near = np.zeros(len(sidx), np.int8)  # per segment sample: 0 not retried, 1 kept, 2 dropped
     n = 0
     m = 0
@@ -55,7 +67,7 @@ def _trimmed_arm_samples(sidx, sg, sproj, smin, smax, seg_seed, arm_of, retry, d
         if a < 0 or not retry[a]:
             continue
         g = sg[k]
-        if (seg_seed[g, 0] < 0 and sproj[k] - smin[g] < d_trim) or (seg_seed[g, 1] < 0 and smax[g] - sproj[k] < d_trim):
+        if free[g] and ((seg_seed[g, 0] < 0 and sproj[k] - smin[g] < d_trim) or (seg_seed[g, 1] < 0 and smax[g] - sproj[k] < d_trim)):
             near[k] = 2
             m += 1
         else:
