@@ -1,7 +1,7 @@
 """Grid extraction: sub-pixel line centres, the two line families, junctions and their connectivity.
 
 One camera image in, a `GridObservation` out (camera pixels, (u, v), pixel (0, 0) = centre of the
-top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055–0059, 0068):
+top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055–0059, 0068, 0077):
 
 1. Smoothing with a Gaussian of σ = 0.4 × the line width the calibration predicts (one separable float32
    filter over the image; lines wider than ~6 px are processed at half resolution after `cv2.pyrDown`).
@@ -51,6 +51,7 @@ import cv2
 import numpy as np
 
 from reconstruction import _extract_kernels as _k
+from reconstruction.junction_arms import retry_trimmed_arms
 from reconstruction.rigmodel import RigModel
 
 
@@ -77,6 +78,9 @@ class ExtractOptions:
         on average (more: the line jumps sideways at the crossing, a depth edge).
     free_end_trim_sigma: samples within this many smoothing scales of a segment end that reaches no
         crossing are left out of their segment (the cut line's ridge is biased there); 0: keep them.
+    arm_free_end_trim: a candidate whose arms are bent (crooked, jump, turn) is fitted again without the
+        samples within `free_end_trim_sigma` smoothing scales of a free segment end (a silhouette or shadow
+        cuts the line there); kept if those arms are straight and run through it (decision 0077).
     downsample_sigma_px: smoothing scales at or above this are computed on a half-resolution image
         (wide lines; the samples are still about two camera pixels apart).
     """
@@ -93,6 +97,7 @@ class ExtractOptions:
     downsample_sigma_px: float = 2.6
     max_arm_turn_deg: float = 9.0
     free_end_trim_sigma: float = 2.0
+    arm_free_end_trim: bool = True
     debug: bool = False
 
 
@@ -382,6 +387,13 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     rms_j = np.zeros((ns, 2))
     if ns:
         cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin = _k.junction_fits(arm_of, fam, qx32, qy32, nx32, ny32, seeds_x, seeds_y, ns)
+        if options.arm_free_end_trim and options.free_end_trim_sigma > 0:
+            # bent arms: fitted again without the samples next to a free segment end, where a silhouette or
+            # a shadow cuts the line and its ridge bends (decision 0077); the fits are replaced in place
+            stats["junctions_arms_trimmed"] = retry_trimmed_arms(
+                (cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin), arm_of, (sidx, sg, sproj, smin, smax, seg_seed),
+                options.free_end_trim_sigma * s_w, (fam, qx32, qy32, nx32, ny32), (seeds_x, seeds_y),
+                rms_tol=options.max_segment_rms_px / scale, sin_tol=float(np.sin(np.deg2rad(options.max_arm_turn_deg))))
         # in one kernel (decision 0079), in this order, each reason counting the candidates still valid:
         # a line that jumps sideways at the crossing (a depth edge: two surfaces' lines meeting) is no
         # crossing: compare the mean signed offsets from the fit on both sides; and with few samples the
@@ -415,6 +427,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         stats["debug_core"] = core
         stats["debug_candidates"] = seeds * scale
         stats["debug_valid"] = valid.copy()
+        stats["debug_arm_of"] = arm_of.copy()
     new_id = np.full(ns + 1, -1, np.int64)
     new_id[:ns][valid] = np.arange(int(valid.sum()))
     q_junction = qj[valid]

@@ -1,0 +1,153 @@
+"""Junction arms cut by a silhouette or a shadow: refit without the bent ends (decision 0077).
+
+A junction's arms are the samples of the segments that reach its crossing, up to 0.6 junction steps away
+(extraction step 4b). Where a silhouette or a shadow edge cuts a line a little past the crossing, the cut
+half of the bar pulls the smoothed ridge sideways within about two smoothing scales of the cut (decision
+0059), and on wide lines (the paper's rigs, σ ≈ 5 px) that bent stretch is a large share of a short arm: the
+arm's straight-line fit fails the crooked, jump or turn test and a true junction is lost. The refit takes,
+for the candidates that fail only those tests, the same arms without the samples within
+`free_end_trim_sigma`·σ of a free segment end (an end that reaches no crossing) and keeps the candidate if
+the shorter arms are straight and still run through it. Samples are only ever removed: the through, count,
+offset and parallel tests are unchanged, so T and L shapes (a line ending at the crossing) stay out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from reconstruction._jit import njit
+
+
+@njit
+def _straight_usable(rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, k, rms_tol, sin_tol):
+    """Candidate k's two arm fits: (straight: no crooked, jump or turn; usable: ≥ 3 samples per family and
+    samples on both sides of the candidate), the extraction's tests."""
+    straight = True
+    usable = True
+    for g in (2 * k, 2 * k + 1):
+        if rms[g] > rms_tol or abs(m_neg[g] - m_pos[g]) > rms_tol or mean_sin[g] > sin_tol:
+            straight = False
+        if cnt[g] < 3 or n_neg[g] < 1 or n_pos[g] < 1:
+            usable = False
+    return straight, usable
+
+
+@njit
+def _bent_candidates(rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, rms_tol, sin_tol):
+    ns = len(rms) // 2
+    bent = np.zeros(ns, np.bool_)
+    for k in range(ns):
+        straight, usable = _straight_usable(rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, k, rms_tol, sin_tol)
+        bent[k] = usable and not straight
+    return bent
+
+
+@njit
+def _trimmed_arm_samples(sidx, sg, sproj, smin, smax, seg_seed, arm_of, retry, d_trim):
+    """The arm samples of the candidates flagged in `retry`: those farther than d_trim (px along the
+    segment) from every free end of their segment (kept), and the others (dropped); ids in
+    segment-sample order."""
+    # only segments with a free end and the other end at a retried candidate can lose samples
+    S = len(seg_seed)
+    free = np.zeros(S, np.bool_)
+    any_free = False
+    for g in range(S):
+        a0 = seg_seed[g, 0]
+        a1 = seg_seed[g, 1]
+        if (a0 < 0 and a1 >= 0 and retry[a1]) or (a1 < 0 and a0 >= 0 and retry[a0]):
+            free[g] = True
+            any_free = True
+    if not any_free:
+        return np.empty(0, np.int64), np.empty(0, np.int64)
+    near = np.zeros(len(sidx), np.int8)  # per segment sample: 0 not retried, 1 kept, 2 dropped
+    n = 0
+    m = 0
+    for k in range(len(sidx)):
+        a = arm_of[sidx[k]]
+        if a < 0 or not retry[a]:
+            continue
+        g = sg[k]
+        if free[g] and ((seg_seed[g, 0] < 0 and sproj[k] - smin[g] < d_trim) or (seg_seed[g, 1] < 0 and smax[g] - sproj[k] < d_trim)):
+            near[k] = 2
+            m += 1
+        else:
+            near[k] = 1
+            n += 1
+    kept = np.empty(n, np.int64)
+    dropped = np.empty(m, np.int64)
+    n = 0
+    m = 0
+    for k in range(len(sidx)):
+        if near[k] == 1:
+            kept[n] = sidx[k]
+            n += 1
+        elif near[k] == 2:
+            dropped[m] = sidx[k]
+            m += 1
+    return kept[:n], dropped[:m]
+
+
+@njit
+def _merge(fits, fits_t, cand, arm_of, dropped, rms_tol, sin_tol):
+    """fits_t: the refits of candidates cand (row 2·c + family − 1 for cand[c]). Where they are straight and
+    usable, copy them over the first fits and take the dropped samples out of arm_of (in place). Returns
+    how many candidates took them."""
+    cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin = fits
+    cen_t, dr_t, rms_t, cnt_t, n_neg_t, n_pos_t, m_neg_t, m_pos_t, mean_sin_t = fits_t
+    take = np.zeros(len(rms) // 2, np.bool_)
+    n_take = 0
+    for c in range(len(cand)):
+        straight, usable = _straight_usable(rms_t, cnt_t, n_neg_t, n_pos_t, m_neg_t, m_pos_t, mean_sin_t, c, rms_tol, sin_tol)
+        if not (straight and usable):
+            continue
+        k = cand[c]
+        take[k] = True
+        n_take += 1
+        for f in range(2):
+            g = 2 * k + f
+            h = 2 * c + f
+            cen[g, 0] = cen_t[h, 0]
+            cen[g, 1] = cen_t[h, 1]
+            dr[g, 0] = dr_t[h, 0]
+            dr[g, 1] = dr_t[h, 1]
+            rms[g] = rms_t[h]
+            cnt[g] = cnt_t[h]
+            n_neg[g] = n_neg_t[h]
+            n_pos[g] = n_pos_t[h]
+            m_neg[g] = m_neg_t[h]
+            m_pos[g] = m_pos_t[h]
+            mean_sin[g] = mean_sin_t[h]
+    for i in dropped:
+        if take[arm_of[i]]:
+            arm_of[i] = -1
+    return n_take
+
+
+def retry_trimmed_arms(fits: tuple, arm_of: np.ndarray, seg_args: tuple, d_trim: float, sample_args: tuple, seeds_xy: tuple,
+                       *, rms_tol: float, sin_tol: float) -> int:
+    """Candidates whose arm fits are bent (crooked, a sideways jump or a turn) are fitted again without the
+    arm samples within d_trim of a free segment end (a line cut by a silhouette or a shadow: its ridge bends
+    there, decision 0059). Where those arms are straight and still run through the candidate (≥ 3 samples
+    per family, samples on both sides), their fits replace the first ones IN PLACE (and the trimmed-away
+    samples leave arm_of); other candidates keep theirs. Only the retried candidates' samples are refitted.
+
+    fits: `_extract_kernels.junction_fits`' 9 arrays (rows 2·k + family − 1), modified in place; arm_of (P,):
+    the arms, modified in place; seg_args: (sidx, sg, sproj, smin, smax, seg_seed); sample_args: (fam, qx,
+    qy, nx, ny) per sample; seeds_xy: (sx, sy) float64 candidate positions. Returns how many candidates
+    took the trimmed arms."""
+    from reconstruction._extract_kernels import junction_fits
+
+    _, _, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin = fits
+    bent = _bent_candidates(rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, rms_tol, sin_tol)
+    cand = np.flatnonzero(bent)
+    if len(cand) == 0:
+        return 0
+    kept, dropped = _trimmed_arm_samples(*seg_args, arm_of, bent, float(d_trim))
+    if len(dropped) == 0:
+        return 0  # nothing near a free end: the same fits
+    compact = np.full(len(bent), -1, np.int64)
+    compact[cand] = np.arange(len(cand))
+    fam, qx, qy, nx, ny = sample_args
+    fits_t = junction_fits(compact[arm_of[kept]], fam[kept], qx[kept], qy[kept], nx[kept], ny[kept],
+                           seeds_xy[0][cand], seeds_xy[1][cand], len(cand))
+    return int(_merge(fits, fits_t, cand, arm_of, dropped, rms_tol, sin_tol))
