@@ -1988,3 +1988,259 @@ def drop_unlabelled_junctions(index, seed_jid):
         else:
             seed_jid[s] = -1
     return m
+
+
+@njit
+def traces_from_segments(q, fam, seg, cen, dr, sel, link_px, lateral_px, cos_turn, w, ridge, ridge_step, use_ridge):
+    """The trace pieces of label_samples (step 3) from extraction's segments instead of a second neighbour
+    search over all samples (decision 0085). The samples sel (n,) (ascending ids) of one segment seg (P,)
+    (extraction's link before junctions and trims took samples out; −1: none, then the sample is a group
+    on its own) are a group, ordered along the segment's fitted line (t = (q − cen[g])·dr[g], camera px).
+    Groups whose end samples (first or last along t) lie within link_px of another group's end sample of
+    the same family are joined (where `traces` links samples across a break of the segments: a crossing's
+    core sample outside the mixing zone, a pair of segments the extraction's probes did not link); a joined
+    component is ordered along its principal axis, as `traces`. Components are numbered by their lowest
+    sample id, ordered by (t, id) and cut between consecutive samples where `traces` cuts: farther apart
+    than link_px, a sideways jump (lateral_px), a turn (cos_turn), or (use_ridge) a ridge brightness step;
+    ridge is indexed by sample id. Returns order (n,) positions in sel, piece (n,), t (n,) and unit
+    tangents (n, 2) in order's order, as `traces_of`."""
+    n = sel.shape[0]
+    S = cen.shape[0]
+    grp = np.empty(n, np.int64)
+    t = np.zeros(n)
+    gid = np.full(S, -1, np.int64)
+    ng = 0
+    for k in range(n):
+        s = sel[k]
+        g = seg[s]
+        if g < 0:
+            grp[k] = ng
+            ng += 1
+            continue
+        if gid[g] < 0:
+            gid[g] = ng
+            ng += 1
+        grp[k] = gid[g]
+        t[k] = (q[s, 0] - cen[g, 0]) * dr[g, 0] + (q[s, 1] - cen[g, 1]) * dr[g, 1]
+    # each group's two end samples (positions in sel)
+    e_lo = np.full(ng, -1, np.intp)
+    e_hi = np.full(ng, -1, np.intp)
+    for k in range(n):
+        g = grp[k]
+        if e_lo[g] < 0 or t[k] < t[e_lo[g]]:
+            e_lo[g] = k
+        if e_hi[g] < 0 or t[k] > t[e_hi[g]]:
+            e_hi[g] = k
+    # join groups at their ends: the ends bucketed in cells at least link_px wide (3×3 cells suffice)
+    parent = np.arange(ng)
+    if ng > 1:
+        cs = max(link_px, 4.0)
+        x0 = np.inf
+        y0 = np.inf
+        x1 = -np.inf
+        y1 = -np.inf
+        for g in range(ng):
+            for e in (e_lo[g], e_hi[g]):
+                s = sel[e]
+                x0 = min(x0, q[s, 0])
+                y0 = min(y0, q[s, 1])
+                x1 = max(x1, q[s, 0])
+                y1 = max(y1, q[s, 1])
+        gw = int((x1 - x0) / cs) + 1
+        gh = int((y1 - y0) / cs) + 1
+        ne = 2 * ng
+        key = np.empty(ne, np.intp)
+        bstart = np.zeros(gw * gh + 1, np.intp)
+        for m in range(ne):
+            e = e_lo[m] if m < ng else e_hi[m - ng]
+            s = sel[e]
+            cx = min(int((q[s, 0] - x0) / cs), gw - 1)
+            cy = min(int((q[s, 1] - y0) / cs), gh - 1)
+            key[m] = cy * gw + cx
+            bstart[key[m] + 1] += 1
+        for m in range(gw * gh):
+            bstart[m + 1] += bstart[m]
+        bfill = bstart[:-1].copy()
+        items = np.empty(ne, np.intp)
+        for m in range(ne):
+            items[bfill[key[m]]] = m
+            bfill[key[m]] += 1
+        link2 = link_px * link_px
+        for m in range(ne):
+            g = m if m < ng else m - ng
+            if m >= ng and e_hi[g] == e_lo[g]:
+                continue
+            s = sel[e_lo[g] if m < ng else e_hi[g]]
+            cx = key[m] % gw
+            cy = key[m] // gw
+            for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
+                for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
+                    b = yy * gw + xx
+                    for it in range(bstart[b], bstart[b + 1]):
+                        m2 = items[it]
+                        g2 = m2 if m2 < ng else m2 - ng
+                        if g2 <= g:
+                            continue
+                        s2 = sel[e_lo[g2] if m2 < ng else e_hi[g2]]
+                        if fam[s2] != fam[s]:
+                            continue
+                        d0 = q[s2, 0] - q[s, 0]
+                        d1 = q[s2, 1] - q[s, 1]
+                        if d0 * d0 + d1 * d1 <= link2:
+                            ra = _union_find_root(parent, g)
+                            rb = _union_find_root(parent, g2)
+                            if ra != rb:
+                                if ra < rb:
+                                    parent[rb] = ra
+                                else:
+                                    parent[ra] = rb
+    # components numbered by their lowest sample id (groups are, and a root is its lowest group)
+    cid = np.full(ng, -1, np.int64)
+    ngrp = np.zeros(ng, np.int64)
+    ncomp = 0
+    for g in range(ng):
+        ro = _union_find_root(parent, g)
+        if cid[ro] < 0:
+            cid[ro] = ncomp
+            ncomp += 1
+        cid[g] = cid[ro]
+        ngrp[cid[g]] += 1
+    comp = np.empty(n, np.int64)
+    for k in range(n):
+        comp[k] = cid[grp[k]]
+    # a joined component: t along its principal axis (as `traces`)
+    joined = False
+    for c in range(ncomp):
+        if ngrp[c] > 1:
+            joined = True
+            break
+    if joined:
+        cnt = np.zeros(ncomp)
+        sx = np.zeros(ncomp)
+        sy = np.zeros(ncomp)
+        for k in range(n):
+            c = comp[k]
+            if ngrp[c] > 1:
+                cnt[c] += 1.0
+                sx[c] += q[sel[k], 0]
+                sy[c] += q[sel[k], 1]
+        sxy = np.zeros(ncomp)
+        sd = np.zeros(ncomp)
+        for k in range(n):
+            c = comp[k]
+            if ngrp[c] > 1:
+                dx = q[sel[k], 0] - sx[c] / cnt[c]
+                dy = q[sel[k], 1] - sy[c] / cnt[c]
+                sxy[c] += dx * dy
+                sd[c] += dx * dx - dy * dy
+        for k in range(n):
+            c = comp[k]
+            if ngrp[c] > 1:
+                th = 0.5 * math.atan2(2 * sxy[c], sd[c])
+                t[k] = (q[sel[k], 0] - sx[c] / cnt[c]) * math.cos(th) + (q[sel[k], 1] - sy[c] / cnt[c]) * math.sin(th)
+    start = np.zeros(ncomp + 1, np.int64)
+    for k in range(n):
+        start[comp[k] + 1] += 1
+    for k in range(ncomp):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.intp)
+    for k in range(n):
+        order[fill[comp[k]]] = k
+        fill[comp[k]] += 1
+    # along the segment: raster order is nearly sorted one way or the other (reverse, then insertion sort
+    # on (t, id); many moves fall back to a stable mergesort), as in `traces`
+    for k in range(ncomp):
+        a, b = start[k], start[k + 1]
+        if b - a < 2:
+            continue
+        if t[order[b - 1]] < t[order[a]]:
+            for m in range((b - a) // 2):
+                v = order[a + m]
+                order[a + m] = order[b - 1 - m]
+                order[b - 1 - m] = v
+        budget = 8 * (b - a) + 64
+        moves = 0
+        for m in range(a + 1, b):
+            v = order[m]
+            tv = t[v]
+            j = m - 1
+            while j >= a and (t[order[j]] > tv or (t[order[j]] == tv and order[j] > v)):
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = v
+            moves += m - 1 - j
+            if moves > budget:
+                break
+        if moves > budget:
+            sg = np.sort(order[a:b])
+            srt = np.argsort(t[sg], kind="mergesort")
+            for m in range(b - a):
+                order[a + m] = sg[srt[m]]
+    qs = np.empty((n, 2))
+    ts = np.empty(n)
+    for k in range(n):
+        s = sel[order[k]]
+        qs[k, 0] = q[s, 0]
+        qs[k, 1] = q[s, 1]
+        ts[k] = t[order[k]]
+    piece = np.zeros(n, np.int64)
+    tangent = np.empty((n, 2))
+    eps32 = np.float32(1e-6)
+    link2 = link_px * link_px
+    cur = 0
+    for cpt in range(ncomp):
+        first = start[cpt]
+        last = start[cpt + 1] - 1
+        for k in range(first, last + 1):
+            piece[k] = cur
+            kb = max(k - w, first)
+            kf = min(k + w, last)
+            tan0 = qs[kf, 0] - qs[kb, 0]
+            tan1 = qs[kf, 1] - qs[kb, 1]
+            lt = max(_hypot(tan0, tan1), 1e-12)
+            T0 = tan0 / lt
+            T1 = tan1 / lt
+            tangent[k, 0] = T0
+            tangent[k, 1] = T1
+            if k == last:
+                continue
+            d0 = qs[k + 1, 0] - qs[k, 0]
+            d1 = qs[k + 1, 1] - qs[k, 1]
+            cut = d0 * d0 + d1 * d1 > link2
+            if not cut:
+                back0 = qs[k, 0] - qs[kb, 0]
+                back1 = qs[k, 1] - qs[kb, 1]
+                kf1 = min(k + 1 + w, last)
+                fwd0 = qs[kf1, 0] - qs[k + 1, 0]
+                fwd1 = qs[kf1, 1] - qs[k + 1, 1]
+                sb = back0 * back0 + back1 * back1
+                sf = fwd0 * fwd0 + fwd1 * fwd1
+                if sb >= 1.0:
+                    lb = math.sqrt(sb)
+                    B0 = back0 / lb
+                    B1 = back1 / lb
+                else:
+                    B0 = T0
+                    B1 = T1
+                if sf >= 1.0:
+                    lf = math.sqrt(sf)
+                    F0 = fwd0 / lf
+                    F1 = fwd1 / lf
+                else:
+                    F0 = T0
+                    F1 = T1
+                lateral = max(abs(d0 * B1 - d1 * B0), abs(d0 * F1 - d1 * F0))
+                along = abs(d0 * B0 + d1 * B1)
+                cut = lateral > lateral_px or along < lateral or B0 * F0 + B1 * F1 < cos_turn
+            if not cut and use_ridge:
+                r0 = ridge[sel[order[k]]]
+                r1 = ridge[sel[order[k + 1]]]
+                top = max(r1, r0)
+                if top < eps32:
+                    top = eps32
+                cut = abs(r1 - r0) > ridge_step * top
+            if cut:
+                cur += 1
+        cur += 1
+    return order, piece, ts, tangent

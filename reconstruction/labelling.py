@@ -500,6 +500,10 @@ class TraceOptions:
         and the facing ends' tangents must meet at the gap's middle within continue_lateral_px (decision 0072).
     cross_rounds_after: rounds of the crossing pieces after the continuation (continued pieces are labelled
         neighbours too; the same check, decision 0074); 0: none.
+    from_segments: build the trace pieces from extraction's segments (`GridObservation.segment_linked`,
+        ordered along each segment's fitted line, then cut by the rules above; a kept sample outside every
+        segment is a piece on its own) instead of linking the samples again (decision 0085); observations
+        without `segment_linked` are linked again.
     """
 
     mix_sigma: float = 2.0
@@ -526,6 +530,7 @@ class TraceOptions:
     continue_tol_px: float = 1.0
     continue_gap_deg: float = 45.0
     cross_rounds_after: int = 1
+    from_segments: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -831,10 +836,19 @@ def label_samples(
     k_idx = np.flatnonzero(kept)
     if len(k_idx):
         use_ridge = ridge is not None and options.max_ridge_step > 0
-        order, piece, ts, tangent = _k.traces_of(
-            q, fam, r, c, k_idx.astype(np.intp), int(H), int(W), float(options.link_px * cell), float(options.lateral_px),
-            float(np.cos(np.deg2rad(options.max_turn_deg))), max(1, int(round(options.direction_px))),
-            ridge if use_ridge else np.zeros(0, np.float32), np.float32(options.max_ridge_step), use_ridge)
+        seg_linked = getattr(obs, "segment_linked", None)
+        if options.from_segments and seg_linked is not None:
+            # one linking: extraction's segments, ordered along their fitted lines and cut (decision 0085)
+            order, piece, ts, tangent = _k.traces_from_segments(
+                q, fam, np.asarray(seg_linked, np.int64), np.ascontiguousarray(obs.segment_centre, np.float64).reshape(-1, 2),
+                np.ascontiguousarray(obs.segment_dir, np.float64).reshape(-1, 2), k_idx.astype(np.intp), float(options.link_px * cell),
+                float(options.lateral_px), float(np.cos(np.deg2rad(options.max_turn_deg))), max(1, int(round(options.direction_px))),
+                ridge if use_ridge else np.zeros(0, np.float32), np.float32(options.max_ridge_step), use_ridge)
+        else:
+            order, piece, ts, tangent = _k.traces_of(
+                q, fam, r, c, k_idx.astype(np.intp), int(H), int(W), float(options.link_px * cell), float(options.lateral_px),
+                float(np.cos(np.deg2rad(options.max_turn_deg))), max(1, int(round(options.direction_px))),
+                ridge if use_ridge else np.zeros(0, np.float32), np.float32(options.max_ridge_step), use_ridge)
         sid = k_idx[order]
         stats["traces"] = int(piece[-1]) + 1
         got, n_seeded, n_conflicting = _k.spread_seeds(sid, piece, ts, seed, seed_jid, index, UNLABELLED)
