@@ -2022,78 +2022,27 @@ def traces_from_segments(q, fam, seg, cen, dr, sel, link_px, lateral_px, cos_tur
             ng += 1
         grp[k] = gid[g]
         t[k] = (q[s, 0] - cen[g, 0]) * dr[g, 0] + (q[s, 1] - cen[g, 1]) * dr[g, 1]
-    # each group's two end samples (positions in sel)
+    # each group's two end samples (positions in sel; the lowest and highest t, the first on a tie)
     e_lo = np.full(ng, -1, np.intp)
     e_hi = np.full(ng, -1, np.intp)
+    t_lo = np.empty(ng)
+    t_hi = np.empty(ng)
     for k in range(n):
         g = grp[k]
-        if e_lo[g] < 0 or t[k] < t[e_lo[g]]:
+        tk = t[k]
+        if e_lo[g] < 0:
             e_lo[g] = k
-        if e_hi[g] < 0 or t[k] > t[e_hi[g]]:
             e_hi[g] = k
-    # join groups at their ends: the ends bucketed in cells at least link_px wide (3×3 cells suffice)
-    parent = np.arange(ng)
-    if ng > 1:
-        cs = max(link_px, 4.0)
-        x0 = np.inf
-        y0 = np.inf
-        x1 = -np.inf
-        y1 = -np.inf
-        for g in range(ng):
-            for e in (e_lo[g], e_hi[g]):
-                s = sel[e]
-                x0 = min(x0, q[s, 0])
-                y0 = min(y0, q[s, 1])
-                x1 = max(x1, q[s, 0])
-                y1 = max(y1, q[s, 1])
-        gw = int((x1 - x0) / cs) + 1
-        gh = int((y1 - y0) / cs) + 1
-        ne = 2 * ng
-        key = np.empty(ne, np.intp)
-        bstart = np.zeros(gw * gh + 1, np.intp)
-        for m in range(ne):
-            e = e_lo[m] if m < ng else e_hi[m - ng]
-            s = sel[e]
-            cx = min(int((q[s, 0] - x0) / cs), gw - 1)
-            cy = min(int((q[s, 1] - y0) / cs), gh - 1)
-            key[m] = cy * gw + cx
-            bstart[key[m] + 1] += 1
-        for m in range(gw * gh):
-            bstart[m + 1] += bstart[m]
-        bfill = bstart[:-1].copy()
-        items = np.empty(ne, np.intp)
-        for m in range(ne):
-            items[bfill[key[m]]] = m
-            bfill[key[m]] += 1
-        link2 = link_px * link_px
-        for m in range(ne):
-            g = m if m < ng else m - ng
-            if m >= ng and e_hi[g] == e_lo[g]:
-                continue
-            s = sel[e_lo[g] if m < ng else e_hi[g]]
-            cx = key[m] % gw
-            cy = key[m] // gw
-            for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
-                for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
-                    b = yy * gw + xx
-                    for it in range(bstart[b], bstart[b + 1]):
-                        m2 = items[it]
-                        g2 = m2 if m2 < ng else m2 - ng
-                        if g2 <= g:
-                            continue
-                        s2 = sel[e_lo[g2] if m2 < ng else e_hi[g2]]
-                        if fam[s2] != fam[s]:
-                            continue
-                        d0 = q[s2, 0] - q[s, 0]
-                        d1 = q[s2, 1] - q[s, 1]
-                        if d0 * d0 + d1 * d1 <= link2:
-                            ra = _union_find_root(parent, g)
-                            rb = _union_find_root(parent, g2)
-                            if ra != rb:
-                                if ra < rb:
-                                    parent[rb] = ra
-                                else:
-                                    parent[ra] = rb
+            t_lo[g] = tk
+            t_hi[g] = tk
+        elif tk < t_lo[g]:
+            e_lo[g] = k
+            t_lo[g] = tk
+        elif tk > t_hi[g]:
+            e_hi[g] = k
+            t_hi[g] = tk
+    # join groups at their ends
+    parent = join_group_ends(q, fam, sel, e_lo, e_hi, ng, link_px)
     # components numbered by their lowest sample id (groups are, and a root is its lowest group)
     cid = np.full(ng, -1, np.int64)
     ngrp = np.zeros(ng, np.int64)
@@ -2133,11 +2082,17 @@ def traces_from_segments(q, fam, seg, cen, dr, sel, link_px, lateral_px, cos_tur
                 dy = q[sel[k], 1] - sy[c] / cnt[c]
                 sxy[c] += dx * dy
                 sd[c] += dx * dx - dy * dy
+        cth = np.zeros(ncomp)
+        sth = np.zeros(ncomp)
+        for c in range(ncomp):
+            if ngrp[c] > 1:
+                th = 0.5 * math.atan2(2 * sxy[c], sd[c])
+                cth[c] = math.cos(th)
+                sth[c] = math.sin(th)
         for k in range(n):
             c = comp[k]
             if ngrp[c] > 1:
-                th = 0.5 * math.atan2(2 * sxy[c], sd[c])
-                t[k] = (q[sel[k], 0] - sx[c] / cnt[c]) * math.cos(th) + (q[sel[k], 1] - sy[c] / cnt[c]) * math.sin(th)
+                t[k] = (q[sel[k], 0] - sx[c] / cnt[c]) * cth[c] + (q[sel[k], 1] - sy[c] / cnt[c]) * sth[c]
     start = np.zeros(ncomp + 1, np.int64)
     for k in range(n):
         start[comp[k] + 1] += 1
@@ -2184,14 +2139,29 @@ def traces_from_segments(q, fam, seg, cen, dr, sel, link_px, lateral_px, cos_tur
         qs[k, 0] = q[s, 0]
         qs[k, 1] = q[s, 1]
         ts[k] = t[order[k]]
+    # runs: the components split where consecutive samples lie farther apart than link_px (the mixing
+    # zone cut out, a segment running on across a crossing); the tangents' chords stay within a run, as
+    # within a component of `traces`
+    link2 = link_px * link_px
+    rstart = np.empty(n + 1, np.int64)
+    nrun = 0
+    for cpt in range(ncomp):
+        rstart[nrun] = start[cpt]
+        nrun += 1
+        for k in range(start[cpt], start[cpt + 1] - 1):
+            d0 = qs[k + 1, 0] - qs[k, 0]
+            d1 = qs[k + 1, 1] - qs[k, 1]
+            if d0 * d0 + d1 * d1 > link2:
+                rstart[nrun] = k + 1
+                nrun += 1
+    rstart[nrun] = n
     piece = np.zeros(n, np.int64)
     tangent = np.empty((n, 2))
     eps32 = np.float32(1e-6)
-    link2 = link_px * link_px
     cur = 0
-    for cpt in range(ncomp):
-        first = start[cpt]
-        last = start[cpt + 1] - 1
+    for run in range(nrun):
+        first = rstart[run]
+        last = rstart[run + 1] - 1
         for k in range(first, last + 1):
             piece[k] = cur
             kb = max(k - w, first)
@@ -2207,32 +2177,31 @@ def traces_from_segments(q, fam, seg, cen, dr, sel, link_px, lateral_px, cos_tur
                 continue
             d0 = qs[k + 1, 0] - qs[k, 0]
             d1 = qs[k + 1, 1] - qs[k, 1]
-            cut = d0 * d0 + d1 * d1 > link2
-            if not cut:
-                back0 = qs[k, 0] - qs[kb, 0]
-                back1 = qs[k, 1] - qs[kb, 1]
-                kf1 = min(k + 1 + w, last)
-                fwd0 = qs[kf1, 0] - qs[k + 1, 0]
-                fwd1 = qs[kf1, 1] - qs[k + 1, 1]
-                sb = back0 * back0 + back1 * back1
-                sf = fwd0 * fwd0 + fwd1 * fwd1
-                if sb >= 1.0:
-                    lb = math.sqrt(sb)
-                    B0 = back0 / lb
-                    B1 = back1 / lb
-                else:
-                    B0 = T0
-                    B1 = T1
-                if sf >= 1.0:
-                    lf = math.sqrt(sf)
-                    F0 = fwd0 / lf
-                    F1 = fwd1 / lf
-                else:
-                    F0 = T0
-                    F1 = T1
-                lateral = max(abs(d0 * B1 - d1 * B0), abs(d0 * F1 - d1 * F0))
-                along = abs(d0 * B0 + d1 * B1)
-                cut = lateral > lateral_px or along < lateral or B0 * F0 + B1 * F1 < cos_turn
+            # (consecutive samples of a run are within link_px)
+            back0 = qs[k, 0] - qs[kb, 0]
+            back1 = qs[k, 1] - qs[kb, 1]
+            kf1 = min(k + 1 + w, last)
+            fwd0 = qs[kf1, 0] - qs[k + 1, 0]
+            fwd1 = qs[kf1, 1] - qs[k + 1, 1]
+            sb = back0 * back0 + back1 * back1
+            sf = fwd0 * fwd0 + fwd1 * fwd1
+            if sb >= 1.0:
+                lb = math.sqrt(sb)
+                B0 = back0 / lb
+                B1 = back1 / lb
+            else:
+                B0 = T0
+                B1 = T1
+            if sf >= 1.0:
+                lf = math.sqrt(sf)
+                F0 = fwd0 / lf
+                F1 = fwd1 / lf
+            else:
+                F0 = T0
+                F1 = T1
+            lateral = max(abs(d0 * B1 - d1 * B0), abs(d0 * F1 - d1 * F0))
+            along = abs(d0 * B0 + d1 * B1)
+            cut = lateral > lateral_px or along < lateral or B0 * F0 + B1 * F1 < cos_turn
             if not cut and use_ridge:
                 r0 = ridge[sel[order[k]]]
                 r1 = ridge[sel[order[k + 1]]]
@@ -2244,3 +2213,91 @@ def traces_from_segments(q, fam, seg, cen, dr, sel, link_px, lateral_px, cos_tur
                 cur += 1
         cur += 1
     return order, piece, ts, tangent
+
+
+@njit
+def join_group_ends(q, fam, sel, e_lo, e_hi, ng, link_px):
+    """`traces_from_segments`' joins: union–find parents (ng,) of the groups whose end samples (positions
+    e_lo, e_hi in sel) lie within link_px of another group's end of the same family. The ends are
+    bucketed per family in cells at least link_px wide (a cell and its forward neighbours hold every
+    pair once), their positions and groups copied in bucket order so that the search reads them in
+    sequence."""
+    parent = np.arange(ng)
+    if ng < 2:
+        return parent
+    cs = max(link_px, 3.0)
+    ne = 2 * ng
+    ex = np.empty(ne)
+    ey = np.empty(ne)
+    ef = np.empty(ne, np.intp)
+    for m in range(ne):
+        g = m if m < ng else m - ng
+        s = sel[e_lo[g] if m < ng else e_hi[g]]
+        ex[m] = q[s, 0]
+        ey[m] = q[s, 1]
+        # a single sample's second end is the same point: left out
+        ef[m] = -1 if (m >= ng and e_hi[g] == e_lo[g]) or (fam[s] != 1 and fam[s] != 2) else fam[s] - 1
+    x0 = ex.min()
+    y0 = ey.min()
+    gw = int((ex.max() - x0) / cs) + 1
+    gh = int((ey.max() - y0) / cs) + 1
+    nc = gw * gh
+    key = np.empty(ne, np.intp)
+    bstart = np.zeros(2 * nc + 1, np.intp)
+    for m in range(ne):
+        if ef[m] < 0:
+            key[m] = -1
+            continue
+        cx = min(int((ex[m] - x0) / cs), gw - 1)
+        cy = min(int((ey[m] - y0) / cs), gh - 1)
+        key[m] = ef[m] * nc + cy * gw + cx
+        bstart[key[m] + 1] += 1
+    for m in range(2 * nc):
+        bstart[m + 1] += bstart[m]
+    bfill = bstart[:-1].copy()
+    bx = np.empty(ne)
+    by = np.empty(ne)
+    bg = np.empty(ne, np.intp)
+    bk = np.empty(ne, np.intp)
+    nb = 0
+    for m in range(ne):
+        if key[m] < 0:
+            continue
+        it = bfill[key[m]]
+        bx[it] = ex[m]
+        by[it] = ey[m]
+        bg[it] = m if m < ng else m - ng
+        bk[it] = key[m]
+        bfill[key[m]] += 1
+        nb += 1
+    link2 = link_px * link_px
+    for i0 in range(nb):
+        k0 = bk[i0]
+        base = (k0 // nc) * nc
+        cell = k0 - base
+        cx = cell % gw
+        cy = cell // gw
+        g = bg[i0]
+        x = bx[i0]
+        y = by[i0]
+        for yy in range(cy, min(cy + 2, gh)):
+            # this row: the cell's later items and the next cell; the row below: three cells
+            if yy == cy:
+                lo = i0 + 1
+                hi = bstart[base + yy * gw + min(cx + 1, gw - 1) + 1]
+            else:
+                lo = bstart[base + yy * gw + max(cx - 1, 0)]
+                hi = bstart[base + yy * gw + min(cx + 1, gw - 1) + 1]
+            for it in range(lo, hi):
+                d0 = bx[it] - x
+                d1 = by[it] - y
+                if d0 * d0 + d1 * d1 <= link2:
+                    g2 = bg[it]
+                    ra = _union_find_root(parent, g)
+                    rb = _union_find_root(parent, g2)
+                    if ra != rb:
+                        if ra < rb:
+                            parent[rb] = ra
+                        else:
+                            parent[ra] = rb
+    return parent
