@@ -2009,38 +2009,39 @@ def traces_from_segments(q, fam, seg, cen, dr, sel, link_px, lateral_px, cos_tur
     grp = np.empty(n, np.int64)
     t = np.zeros(n)
     gid = np.full(S, -1, np.int64)
+    # each group's two end samples (positions in sel; the lowest and highest t, the first on a tie)
+    e_lo = np.empty(n, np.intp)
+    e_hi = np.empty(n, np.intp)
+    t_lo = np.empty(n)
+    t_hi = np.empty(n)
     ng = 0
     for k in range(n):
         s = sel[k]
         g = seg[s]
         if g < 0:
             grp[k] = ng
+            e_lo[ng] = k
+            e_hi[ng] = k
             ng += 1
             continue
-        if gid[g] < 0:
-            gid[g] = ng
+        tk = (q[s, 0] - cen[g, 0]) * dr[g, 0] + (q[s, 1] - cen[g, 1]) * dr[g, 1]
+        t[k] = tk
+        h = gid[g]
+        if h < 0:
+            h = ng
+            gid[g] = h
             ng += 1
-        grp[k] = gid[g]
-        t[k] = (q[s, 0] - cen[g, 0]) * dr[g, 0] + (q[s, 1] - cen[g, 1]) * dr[g, 1]
-    # each group's two end samples (positions in sel; the lowest and highest t, the first on a tie)
-    e_lo = np.full(ng, -1, np.intp)
-    e_hi = np.full(ng, -1, np.intp)
-    t_lo = np.empty(ng)
-    t_hi = np.empty(ng)
-    for k in range(n):
-        g = grp[k]
-        tk = t[k]
-        if e_lo[g] < 0:
-            e_lo[g] = k
-            e_hi[g] = k
-            t_lo[g] = tk
-            t_hi[g] = tk
-        elif tk < t_lo[g]:
-            e_lo[g] = k
-            t_lo[g] = tk
-        elif tk > t_hi[g]:
-            e_hi[g] = k
-            t_hi[g] = tk
+            e_lo[h] = k
+            e_hi[h] = k
+            t_lo[h] = tk
+            t_hi[h] = tk
+        elif tk < t_lo[h]:
+            e_lo[h] = k
+            t_lo[h] = tk
+        elif tk > t_hi[h]:
+            e_hi[h] = k
+            t_hi[h] = tk
+        grp[k] = h
     # join groups at their ends
     parent = join_group_ends(q, fam, sel, e_lo, e_hi, ng, link_px)
     # components numbered by their lowest sample id (groups are, and a root is its lowest group)
@@ -2064,35 +2065,45 @@ def traces_from_segments(q, fam, seg, cen, dr, sel, link_px, lateral_px, cos_tur
             joined = True
             break
     if joined:
+        jk = np.empty(n, np.intp)
+        nj = 0
+        for k in range(n):
+            if ngrp[comp[k]] > 1:
+                jk[nj] = k
+                nj += 1
         cnt = np.zeros(ncomp)
         sx = np.zeros(ncomp)
         sy = np.zeros(ncomp)
-        for k in range(n):
+        for m in range(nj):
+            k = jk[m]
             c = comp[k]
-            if ngrp[c] > 1:
-                cnt[c] += 1.0
-                sx[c] += q[sel[k], 0]
-                sy[c] += q[sel[k], 1]
+            cnt[c] += 1.0
+            sx[c] += q[sel[k], 0]
+            sy[c] += q[sel[k], 1]
+        for c in range(ncomp):
+            if cnt[c] > 0:
+                sx[c] /= cnt[c]
+                sy[c] /= cnt[c]
         sxy = np.zeros(ncomp)
         sd = np.zeros(ncomp)
-        for k in range(n):
+        for m in range(nj):
+            k = jk[m]
             c = comp[k]
-            if ngrp[c] > 1:
-                dx = q[sel[k], 0] - sx[c] / cnt[c]
-                dy = q[sel[k], 1] - sy[c] / cnt[c]
-                sxy[c] += dx * dy
-                sd[c] += dx * dx - dy * dy
+            dx = q[sel[k], 0] - sx[c]
+            dy = q[sel[k], 1] - sy[c]
+            sxy[c] += dx * dy
+            sd[c] += dx * dx - dy * dy
         cth = np.zeros(ncomp)
         sth = np.zeros(ncomp)
         for c in range(ncomp):
-            if ngrp[c] > 1:
+            if cnt[c] > 0:
                 th = 0.5 * math.atan2(2 * sxy[c], sd[c])
                 cth[c] = math.cos(th)
                 sth[c] = math.sin(th)
-        for k in range(n):
+        for m in range(nj):
+            k = jk[m]
             c = comp[k]
-            if ngrp[c] > 1:
-                t[k] = (q[sel[k], 0] - sx[c] / cnt[c]) * cth[c] + (q[sel[k], 1] - sy[c] / cnt[c]) * sth[c]
+            t[k] = (q[sel[k], 0] - sx[c]) * cth[c] + (q[sel[k], 1] - sy[c]) * sth[c]
     start = np.zeros(ncomp + 1, np.int64)
     for k in range(n):
         start[comp[k] + 1] += 1
@@ -2168,7 +2179,7 @@ def traces_from_segments(q, fam, seg, cen, dr, sel, link_px, lateral_px, cos_tur
             kf = min(k + w, last)
             tan0 = qs[kf, 0] - qs[kb, 0]
             tan1 = qs[kf, 1] - qs[kb, 1]
-            lt = max(_hypot(tan0, tan1), 1e-12)
+            lt = max(math.sqrt(tan0 * tan0 + tan1 * tan1), 1e-12)
             T0 = tan0 / lt
             T1 = tan1 / lt
             tangent[k, 0] = T0
@@ -2225,7 +2236,7 @@ def join_group_ends(q, fam, sel, e_lo, e_hi, ng, link_px):
     parent = np.arange(ng)
     if ng < 2:
         return parent
-    cs = max(link_px, 3.0)
+    cs = max(link_px, 8.0)
     ne = 2 * ng
     ex = np.empty(ne)
     ey = np.empty(ne)
