@@ -2024,7 +2024,10 @@ def traces_from_segments(q, fam, seg, cen, dr, sel, link_px, lateral_px, cos_tur
             e_hi[ng] = k
             ng += 1
             continue
+        # t increases to the right (downwards on a vertical line), as along `traces`' principal axis
         tk = (q[s, 0] - cen[g, 0]) * dr[g, 0] + (q[s, 1] - cen[g, 1]) * dr[g, 1]
+        if dr[g, 0] < 0 or (dr[g, 0] == 0 and dr[g, 1] < 0):
+            tk = -tk
         t[k] = tk
         h = gid[g]
         if h < 0:
