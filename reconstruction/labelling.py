@@ -768,8 +768,10 @@ def label_samples(
     """Give every line sample the index of its line, following the visible trace of the line from the
     labelled junctions on it.
 
-    Samples of one family are linked into trace pieces (neighbours within `link_px`, cut where the line
-    jumps sideways by more than `lateral_px` or turns by more than `max_turn_deg`); samples near a labelled
+    Samples of one family are linked into trace pieces (extraction's segments, joined where their ends lie
+    within `link_px` of one another, split where consecutive samples lie farther apart, decision 0085; or,
+    with `from_segments` off, neighbours within `link_px`), cut where the line
+    jumps sideways by more than `lateral_px` or turns by more than `max_turn_deg`; samples near a labelled
     junction, on the junction's fitted line, are seeds carrying the junction's index; every sample takes
     the index of the nearest seed along its piece. A piece therefore carries the index from a labelled
     junction through unlabelled crossings' gaps only where its samples stay linked, out to the image
