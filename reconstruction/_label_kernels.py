@@ -2028,6 +2028,8 @@ def traces_from_segments(q, fam, seg, cen, dr, sel, link_px, lateral_px, cos_tur
         tk = (q[s, 0] - cen[g, 0]) * dr[g, 0] + (q[s, 1] - cen[g, 1]) * dr[g, 1]
         if dr[g, 0] < 0 or (dr[g, 0] == 0 and dr[g, 1] < 0):
             tk = -tk
+        if tk != tk:  # a degenerate fit: no order along it
+            tk = 0.0
         t[k] = tk
         h = gid[g]
         if h < 0:

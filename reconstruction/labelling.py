@@ -839,7 +839,7 @@ def label_samples(
     if len(k_idx):
         use_ridge = ridge is not None and options.max_ridge_step > 0
         seg_linked = getattr(obs, "segment_linked", None)
-        if options.from_segments and seg_linked is not None:
+        if options.from_segments and seg_linked is not None and len(seg_linked) == P:
             # one linking: extraction's segments, ordered along their fitted lines and cut (decision 0085)
             order, piece, ts, tangent = _k.traces_from_segments(
                 q, fam, np.asarray(seg_linked, np.int64), np.ascontiguousarray(obs.segment_centre, np.float64).reshape(-1, 2),
