@@ -872,7 +872,8 @@ def label_samples(
             # crossing at its far end names another line (decision 0084, `reconstruction.trace_ends`)
             stats["samples_far_end_cut"] = cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, depth_range_mm,
                                                         options.cross_radius * model.junction_step_cam_px,
-                                                        options.cross_residual_px, grid, UNLABELLED)
+                                                        options.cross_residual_px, grid, UNLABELLED, options.cross_min_samples,
+                                                        options.seed_lateral_px * cell, ridge)
         if (options.cross_pieces or options.continue_lines) and model is not None:
             got = np.isfinite(index[sid])
         stats["samples_unseeded"] = int((~got).sum())
