@@ -95,11 +95,13 @@ def seeded_far_ends(sid, piece, seed, index, unlabelled, q, tangent, fam, min_sa
 
 
 @njit
-def unlabel_stretches(cut, lo, hi, sign, sid, ridge, use_ridge, index, seed_jid):
+def unlabel_stretches(cut, lo, hi, sign, beyond, sid, ridge, use_ridge, index, seed_jid):
     """For the rows r with cut[r]: the stretch lo[r]..hi[r] (trace positions; the seed beyond hi when
     sign −1, beyond lo when sign +1) loses its label from the largest step of the ridge brightness between
-    consecutive samples (the seed's sample included) out to its end (the whole stretch without ridge).
-    index = NaN, seed_jid = −1 there. Returns how many samples lost their label."""
+    consecutive samples (the seed's sample included) out to its end (the whole stretch without ridge);
+    nothing when the largest step is the one across the crossing, from the end to beyond[r] (the line's first
+    sample past the crossing; −1: none): the edge is at the crossing. index = NaN, seed_jid = −1 there.
+    Returns how many samples lost their label."""
     m = 0
     for r in range(cut.shape[0]):
         if not cut[r]:
@@ -108,6 +110,9 @@ def unlabel_stretches(cut, lo, hi, sign, sid, ridge, use_ridge, index, seed_jid)
         b = hi[r]
         if use_ridge:
             best = -1.0
+            across = -1.0
+            if beyond[r] >= 0:
+                across = abs(ridge[beyond[r]] - ridge[sid[a if sign[r] < 0 else b]])
             if sign[r] < 0:
                 # steps (k, k+1) for k in lo..hi (hi+1: the seed side); unlabel lo..k
                 at = b
@@ -125,6 +130,8 @@ def unlabel_stretches(cut, lo, hi, sign, sid, ridge, use_ridge, index, seed_jid)
                         best = d
                         at = k
                 a = at
+            if across > best:
+                continue
         for k in range(a, b + 1):
             s = sid[k]
             if math.isfinite(index[s]):
@@ -135,20 +142,23 @@ def unlabel_stretches(cut, lo, hi, sign, sid, ridge, use_ridge, index, seed_jid)
 
 
 @njit
-def line_goes_on(c, e, te, sign, fe, q, fam, lateral_px, x0, y0, cell, gw, gh, start, items):
+def line_goes_on(c, e, te, sign, fe, q, fam, lateral_px, x0, y0, cell, gw, gh, start, items, pos_of):
     """For each crossing c (E, 2) at the end e (E, 2) of a piece (tangent te, sign −1 first / +1 last end,
     family fe): is there a sample of family fe past the crossing, on the end's tangent line (within
     lateral_px across it) and no farther beyond c than the end is before it plus 2 px? (E,) bool. A line
     that goes on through the crossing makes an X (both lines on one surface there); a line that ends at it
     (a T: a silhouette next to another surface's line) does not. Candidates: the valid samples of the
-    frame's bucket grid."""
+    frame's bucket grid. Also (E,) the sample on a trace (pos_of ≥ 0, outside the mixing zone) among them
+    farthest past c (−1: none): the line's first sample beyond the crossing's gap."""
     E = c.shape[0]
     out = np.zeros(E, np.bool_)
+    beyond = np.full(E, -1, np.intp)
     for r in range(E):
         dx = sign[r] * te[r, 0]
         dy = sign[r] * te[r, 1]
         gap = (c[r, 0] - e[r, 0]) * dx + (c[r, 1] - e[r, 1]) * dy
         reach = max(gap, 0.0) + 2.0
+        best = -1.0
         cx = int(math.floor((c[r, 0] - x0) / cell))
         cy = int(math.floor((c[r, 1] - y0) / cell))
         for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
@@ -163,12 +173,10 @@ def line_goes_on(c, e, te, sign, fe, q, fam, lateral_px, x0, y0, cell, gw, gh, s
                     a = wx * dx + wy * dy
                     if a > 0.5 and a <= reach and abs(wx * dy - wy * dx) <= lateral_px:
                         out[r] = True
-                        break
-                if out[r]:
-                    break
-            if out[r]:
-                break
-    return out
+                        if pos_of[s] >= 0 and a > best:
+                            best = a
+                            beyond[r] = s
+    return out, beyond
 
 
 def cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, depth_range_mm, radius_px: float,
@@ -200,8 +208,9 @@ def cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, dept
         # only a crossing that the piece's line goes on through is a crossing of two lines on one surface: at a
         # T (this line ends at a silhouette beside another surface's line) the tangents meet in empty space
         r = np.flatnonzero(cut)
-        cut[r] = line_goes_on(c[r], e[r], te[r], sign[r], fe[r], q, fam, float(lateral_px), *grid[:7])
+        beyond = np.full(len(e), -1, np.intp)
+        cut[r], beyond[r] = line_goes_on(c[r], e[r], te[r], sign[r], fe[r], q, fam, float(lateral_px), *grid[:7], grid[7])
     if not cut.any():
         return 0
     use_ridge = ridge is not None and len(ridge) == len(q)
-    return int(unlabel_stretches(cut, lo, hi, sign, sid, ridge if use_ridge else np.zeros(0, np.float32), use_ridge, index, seed_jid))
+    return int(unlabel_stretches(cut, lo, hi, sign, beyond, sid, ridge if use_ridge else np.zeros(0, np.float32), use_ridge, index, seed_jid))
