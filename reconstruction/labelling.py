@@ -29,6 +29,7 @@ from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import epipolar_lines, paper_epipolar_mb
 from reconstruction.rigmodel import UNLABELLED, RigModel
+from reconstruction.trace_ends import cut_far_ends
 
 
 @dataclass(frozen=True)
@@ -500,6 +501,10 @@ class TraceOptions:
         and the facing ends' tangents must meet at the gap's middle within continue_lateral_px (decision 0072).
     cross_rounds_after: rounds of the crossing pieces after the continuation (continued pieces are labelled
         neighbours too; the same check, decision 0074); 0: none.
+    far_end_check: a seeded piece's stretch past its outermost seed loses its label when the crossing at
+        that end, with a labelled line of the other family, names another line of the piece's family (the
+        crossing check above, cross_radius and cross_residual_px): the trace ran across a depth edge onto a
+        collinear line of another surface (decision 0084, `reconstruction.trace_ends`).
     """
 
     mix_sigma: float = 2.0
@@ -526,6 +531,7 @@ class TraceOptions:
     continue_tol_px: float = 1.0
     continue_gap_deg: float = 45.0
     cross_rounds_after: int = 1
+    far_end_check: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -868,6 +874,13 @@ def label_samples(
                     q, fam, sid, piece, ts, tangent, index, seed_jid, model, depth_range_mm,
                     options.cross_radius * model.junction_step_cam_px, options.cross_trim_sigma * sigma_px,
                     options, grid, rounds=options.cross_rounds_after, state=cross_state)
+        if options.far_end_check and model is not None and grid is not None:
+            # a seeded trace that ran across a depth edge onto a collinear line of another surface: the
+            # crossing at its far end names another line (decision 0084, `reconstruction.trace_ends`)
+            stats["samples_far_end_cut"] = cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, depth_range_mm,
+                                                        options.cross_radius * model.junction_step_cam_px,
+                                                        options.cross_residual_px, grid, UNLABELLED, options.cross_min_samples,
+                                                        options.seed_lateral_px * cell, ridge)
         if (options.cross_pieces or options.continue_lines) and model is not None:
             got = np.isfinite(index[sid])
         stats["samples_unseeded"] = int((~got).sum())
