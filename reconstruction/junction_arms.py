@@ -9,6 +9,11 @@ for the candidates that fail only those tests, the same arms without the samples
 `free_end_trim_sigma`·σ of a free segment end (an end that reaches no crossing) and keeps the candidate if
 the shorter arms are straight and still run through it. Samples are only ever removed: the through, count,
 offset and parallel tests are unchanged, so T and L shapes (a line ending at the crossing) stay out.
+
+A candidate still bent after that is fitted once more on its arm samples within half the arm radius
+(`ExtractOptions.arm_short_share`, round 4b of decision 0077): a line curved by the surface is off its chord
+by an amount that shrinks with the arm's length squared, a sideways step at the crossing (a depth edge) is
+not, so the jump test keeps its meaning.
 """
 
 from __future__ import annotations
