@@ -62,9 +62,9 @@ def _arm_positions(sidx, arm_of, retry):
 
 @njit
 def _trimmed_arm_samples(sidx, sg, sproj, smin, smax, seg_seed, arm_of, retry, d_trim, pos):
-    """The arm samples of the candidates flagged in `retry`: those farther than d_trim (px along the
-    segment) from every free end of their segment (kept), and the others (dropped); ids in
-    segment-sample order."""
+    """The arm samples of the candidates flagged in `retry` (at positions pos in sidx, `_arm_positions`):
+    those farther than d_trim (px along the segment) from every free end of their segment (kept), and the
+    others (dropped); ids in segment-sample order."""
     # only segments with a free end and the other end at a retried candidate can lose samples
     S = len(seg_seed)
     free = np.zeros(S, np.bool_)
