@@ -1206,52 +1206,8 @@ def crossing_hits_traces(e, te, sign, fe, q, sid, tangent, fam, index, labelled_
     lowest position on a tie, as the k-d tree query over the gathered candidates), then the same crossing
     test. Candidates come from the bucket grid of `sample_grid` (cell ≥ radius). Returns o (E,) the trace
     position (−1: none) and c (E, 2)."""
-    E = e.shape[0]
-    o = np.full(E, -1, np.intp)
-    c = np.full((E, 2), np.nan)
-    r2 = radius * radius
-    for i in range(E):
-        ex = e[i, 0]
-        ey = e[i, 1]
-        if not (math.isfinite(ex) and math.isfinite(ey)):
-            continue
-        want = 3 - fe[i]
-        cx = int(math.floor((ex - x0) / cell))
-        cy = int(math.floor((ey - y0) / cell))
-        bd = np.inf
-        bk = -1
-        for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
-            for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
-                b = yy * gw + xx
-                for t in range(start[b], start[b + 1]):
-                    s = items[t]
-                    k = pos_of[s]
-                    if k < 0 or fam[s] != want:
-                        continue
-                    if labelled_only and not math.isfinite(index[s]):
-                        continue
-                    d0 = q[s, 0] - ex
-                    d1 = q[s, 1] - ey
-                    d2 = d0 * d0 + d1 * d1
-                    if d2 < r2 and (d2 < bd or (d2 == bd and k < bk)):
-                        bd = d2
-                        bk = k
-        if bk < 0:
-            continue
-        k = bk
-        s = sid[k]
-        den = te[i, 0] * tangent[k, 1] - te[i, 1] * tangent[k, 0]
-        if not abs(den) > sin_min:
-            continue
-        w0 = q[s, 0] - ex
-        w1 = q[s, 1] - ey
-        a = (w0 * tangent[k, 1] - w1 * tangent[k, 0]) / den
-        bb = (w0 * te[i, 1] - w1 * te[i, 0]) / den
-        if abs(a) <= radius and abs(bb) <= radius and sign[i] * a >= -1.0:
-            o[i] = k
-            c[i, 0] = ex + a * te[i, 0]
-            c[i, 1] = ey + a * te[i, 1]
-    return o, c
+    _, bk = crossing_nearest(e, fe, q, fam, index, labelled_only, radius, x0, y0, cell, gw, gh, start, items, pos_of)
+    return crossing_test(e, te, sign, bk, q, sid, tangent, radius, sin_min)
 
 
 @njit

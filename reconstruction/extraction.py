@@ -81,6 +81,9 @@ class ExtractOptions:
     arm_free_end_trim: a candidate whose arms are bent (crooked, jump, turn) is fitted again without the
         samples within `free_end_trim_sigma` smoothing scales of a free segment end (a silhouette or shadow
         cuts the line there); kept if those arms are straight and run through it (decision 0077).
+    arm_short_share: with `arm_free_end_trim`, a candidate still bent after that refit is fitted once more
+        on its arm samples within this share of the arm radius (at least the attach radius + 1), free ends
+        trimmed too; kept on the same terms (decision 0077, round 4b); 0: off.
     downsample_sigma_px: smoothing scales at or above this are computed on a half-resolution image
         (wide lines; the samples are still about two camera pixels apart).
     """
@@ -98,6 +101,7 @@ class ExtractOptions:
     max_arm_turn_deg: float = 9.0
     free_end_trim_sigma: float = 2.0
     arm_free_end_trim: bool = True
+    arm_short_share: float = 0.5
     debug: bool = False
 
 
@@ -397,7 +401,8 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
             stats["junctions_arms_trimmed"] = retry_trimmed_arms(
                 (cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin), arm_of, (sidx, sg, sproj, smin, smax, seg_seed),
                 options.free_end_trim_sigma * s_w, (fam, qx32, qy32, nx32, ny32), (seeds_x, seeds_y),
-                rms_tol=options.max_segment_rms_px / scale, sin_tol=float(np.sin(np.deg2rad(options.max_arm_turn_deg))))
+                rms_tol=options.max_segment_rms_px / scale, sin_tol=float(np.sin(np.deg2rad(options.max_arm_turn_deg))),
+                r_short=max(options.arm_short_share * R, r_att + 1.0) if options.arm_short_share > 0 else 0.0)
         # in one kernel (decision 0079), in this order, each reason counting the candidates still valid:
         # a line that jumps sideways at the crossing (a depth edge: two surfaces' lines meeting) is no
         # crossing: compare the mean signed offsets from the fit on both sides; and with few samples the

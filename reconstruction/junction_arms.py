@@ -9,6 +9,11 @@ for the candidates that fail only those tests, the same arms without the samples
 `free_end_trim_sigma`·σ of a free segment end (an end that reaches no crossing) and keeps the candidate if
 the shorter arms are straight and still run through it. Samples are only ever removed: the through, count,
 offset and parallel tests are unchanged, so T and L shapes (a line ending at the crossing) stay out.
+
+A candidate still bent after that is fitted once more on its arm samples within half the arm radius
+(`ExtractOptions.arm_short_share`, round 4b of decision 0077): a line curved by the surface is off its chord
+by an amount that shrinks with the arm's length squared, a sideways step at the crossing (a depth edge) is
+not, so the jump test keeps its meaning.
 """
 
 from __future__ import annotations
@@ -43,10 +48,23 @@ def _bent_candidates(rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, rms_tol, si
 
 
 @njit
-def _trimmed_arm_samples(sidx, sg, sproj, smin, smax, seg_seed, arm_of, retry, d_trim):
-    """The arm samples of the candidates flagged in `retry`: those farther than d_trim (px along the
-    segment) from every free end of their segment (kept), and the others (dropped); ids in
-    segment-sample order."""
+def _arm_positions(sidx, arm_of, retry):
+    """The positions k in the segment-sample order (sidx) of the arm samples of the candidates flagged in
+    `retry`: one scan over the segment samples for both refits."""
+    pos = np.empty(len(sidx), np.int64)
+    n = 0
+    for k in range(len(sidx)):
+        a = arm_of[sidx[k]]
+        pos[n] = k
+        n += a >= 0 and retry[max(a, 0)]
+    return pos[:n]
+
+
+@njit
+def _trimmed_arm_samples(sidx, sg, sproj, smin, smax, seg_seed, arm_of, retry, d_trim, pos):
+    """The arm samples of the candidates flagged in `retry` (at positions pos in sidx, `_arm_positions`):
+    those farther than d_trim (px along the segment) from every free end of their segment (kept), and the
+    others (dropped); ids in segment-sample order."""
     # only segments with a free end and the other end at a retried candidate can lose samples
     S = len(seg_seed)
     free = np.zeros(S, np.bool_)
@@ -59,30 +77,67 @@ def _trimmed_arm_samples(sidx, sg, sproj, smin, smax, seg_seed, arm_of, retry, d
             any_free = True
     if not any_free:
         return np.empty(0, np.int64), np.empty(0, np.int64)
-    near = np.zeros(len(sidx), np.int8)  # per segment sample: 0 not retried, 1 kept, 2 dropped
+    near = np.zeros(len(pos), np.int8)  # per retried arm sample: 1 kept, 2 dropped
     n = 0
     m = 0
-    for k in range(len(sidx)):
-        a = arm_of[sidx[k]]
-        if a < 0 or not retry[a]:
-            continue
+    for p in range(len(pos)):
+        k = pos[p]
         g = sg[k]
         if free[g] and ((seg_seed[g, 0] < 0 and sproj[k] - smin[g] < d_trim) or (seg_seed[g, 1] < 0 and smax[g] - sproj[k] < d_trim)):
-            near[k] = 2
+            near[p] = 2
             m += 1
         else:
-            near[k] = 1
+            near[p] = 1
             n += 1
     kept = np.empty(n, np.int64)
     dropped = np.empty(m, np.int64)
     n = 0
     m = 0
-    for k in range(len(sidx)):
-        if near[k] == 1:
-            kept[n] = sidx[k]
+    for p in range(len(pos)):
+        if near[p] == 1:
+            kept[n] = sidx[pos[p]]
             n += 1
-        elif near[k] == 2:
-            dropped[m] = sidx[k]
+        else:
+            dropped[m] = sidx[pos[p]]
+            m += 1
+    return kept[:n], dropped[:m]
+
+
+@njit
+def _short_arm_samples(sidx, sg, sproj, smin, smax, seg_seed, arm_of, retry, d_trim, pos, qx, qy, sx, sy, r_short):
+    """Of the arm samples at positions pos (`_arm_positions`), those of the candidates flagged in `retry`:
+    those within r_short (px) of their candidate and farther than d_trim (px along the segment) from every
+    free end of their segment (kept), and the others (dropped); ids in segment-sample order."""
+    near = np.zeros(len(pos), np.int8)  # per arm sample: 0 not retried, 1 kept, 2 dropped
+    n = 0
+    m = 0
+    for p in range(len(pos)):
+        k = pos[p]
+        i = sidx[k]
+        a = arm_of[i]
+        if a < 0 or not retry[a]:
+            continue
+        g = sg[k]
+        dx = np.float64(qx[i]) - sx[a]
+        dy = np.float64(qy[i]) - sy[a]
+        if dx * dx + dy * dy > r_short * r_short or (seg_seed[g, 0] < 0 and sproj[k] - smin[g] < d_trim) or (
+            seg_seed[g, 1] < 0 and smax[g] - sproj[k] < d_trim
+        ):
+            near[p] = 2
+            m += 1
+        else:
+            near[p] = 1
+            n += 1
+    kept = np.empty(n, np.int64)
+    dropped = np.empty(m, np.int64)
+    n = 0
+    m = 0
+    for p in range(len(pos)):
+        if near[p] == 1:
+            kept[n] = sidx[pos[p]]
+            n += 1
+        elif near[p] == 2:
+            dropped[m] = sidx[pos[p]]
             m += 1
     return kept[:n], dropped[:m]
 
@@ -124,7 +179,7 @@ def _merge(fits, fits_t, cand, arm_of, dropped, rms_tol, sin_tol):
 
 
 def retry_trimmed_arms(fits: tuple, arm_of: np.ndarray, seg_args: tuple, d_trim: float, sample_args: tuple, seeds_xy: tuple,
-                       *, rms_tol: float, sin_tol: float) -> int:
+                       *, rms_tol: float, sin_tol: float, r_short: float = 0.0) -> int:
     """Candidates whose arm fits are bent (crooked, a sideways jump or a turn) are fitted again without the
     arm samples within d_trim of a free segment end (a line cut by a silhouette or a shadow: its ridge bends
     there, decision 0059). Where those arms are straight and still run through the candidate (≥ 3 samples
@@ -133,19 +188,39 @@ def retry_trimmed_arms(fits: tuple, arm_of: np.ndarray, seg_args: tuple, d_trim:
 
     fits: `_extract_kernels.junction_fits`' 9 arrays (rows 2·k + family − 1), modified in place; arm_of (P,):
     the arms, modified in place; seg_args: (sidx, sg, sproj, smin, smax, seg_seed); sample_args: (fam, qx,
-    qy, nx, ny) per sample; seeds_xy: (sx, sy) float64 candidate positions. Returns how many candidates
-    took the trimmed arms."""
-    from reconstruction._extract_kernels import junction_fits
-
+    qy, nx, ny) per sample; seeds_xy: (sx, sy) float64 candidate positions. r_short > 0: candidates still
+    bent after that are fitted once more on their arm samples within r_short px of the candidate (and not
+    within d_trim of a free end), taken on the same terms. Returns how many candidates took a refit."""
     _, _, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin = fits
     bent = _bent_candidates(rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, rms_tol, sin_tol)
     cand = np.flatnonzero(bent)
     if len(cand) == 0:
         return 0
-    kept, dropped = _trimmed_arm_samples(*seg_args, arm_of, bent, float(d_trim))
+    pos = _arm_positions(seg_args[0], arm_of, bent)
+    kept, dropped = _trimmed_arm_samples(*seg_args, arm_of, bent, float(d_trim), pos)
+    n_take = 0
+    if len(dropped):  # else nothing near a free end: the same fits
+        n_take = _refit(fits, arm_of, cand, kept, dropped, sample_args, seeds_xy, rms_tol, sin_tol)
+    if r_short <= 0:
+        return n_take
+    # still bent: once more on arms of r_short around the candidate (without the free ends' samples too)
+    bent &= _bent_candidates(rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, rms_tol, sin_tol)
+    cand = np.flatnonzero(bent)
+    if len(cand) == 0:
+        return n_take
+    fam, qx, qy, nx, ny = sample_args
+    kept, dropped = _short_arm_samples(*seg_args, arm_of, bent, float(d_trim), pos, qx, qy, seeds_xy[0], seeds_xy[1], float(r_short))
     if len(dropped) == 0:
-        return 0  # nothing near a free end: the same fits
-    compact = np.full(len(bent), -1, np.int64)
+        return n_take
+    return n_take + _refit(fits, arm_of, cand, kept, dropped, sample_args, seeds_xy, rms_tol, sin_tol)
+
+
+def _refit(fits: tuple, arm_of: np.ndarray, cand: np.ndarray, kept: np.ndarray, dropped: np.ndarray, sample_args: tuple,
+           seeds_xy: tuple, rms_tol: float, sin_tol: float) -> int:
+    """Fit candidates cand on their arm samples `kept` only; merge where straight and usable (in place)."""
+    from reconstruction._extract_kernels import junction_fits
+
+    compact = np.full(len(fits[2]) // 2, -1, np.int64)
     compact[cand] = np.arange(len(cand))
     fam, qx, qy, nx, ny = sample_args
     fits_t = junction_fits(compact[arm_of[kept]], fam[kept], qx[kept], qy[kept], nx[kept], ny[kept],

@@ -29,6 +29,7 @@ from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import epipolar_lines, paper_epipolar_mb
 from reconstruction.rigmodel import UNLABELLED, RigModel
+from reconstruction.trace_ends import cut_far_ends
 
 
 @dataclass(frozen=True)
@@ -500,10 +501,14 @@ class TraceOptions:
         and the facing ends' tangents must meet at the gap's middle within continue_lateral_px (decision 0072).
     cross_rounds_after: rounds of the crossing pieces after the continuation (continued pieces are labelled
         neighbours too; the same check, decision 0074); 0: none.
-    from_segments: build the trace pieces from extraction's segments (`GridObservation.segment_linked`,
-        ordered along each segment's fitted line, then cut by the rules above; a kept sample outside every
-        segment is a piece on its own) instead of linking the samples again (decision 0085); observations
-        without `segment_linked` are linked again.
+    far_end_check: a seeded piece's stretch past its outermost seed loses its label when the crossing at
+        that end, with a labelled line of the other family, names another line of the piece's family (the
+        crossing check above, cross_radius and cross_residual_px): the trace ran across a depth edge onto a
+        collinear line of another surface (decision 0084, `reconstruction.trace_ends`).
+    from_segments: build the trace pieces from extraction's segments (`GridObservation.segment_linked`:
+        ordered along each segment's fitted line, joined where segment ends, or a kept sample outside every
+        segment, lie within link_px of one another, then cut by the rules above) instead of linking the
+        samples again (decision 0085); observations without `segment_linked` are linked again.
     """
 
     mix_sigma: float = 2.0
@@ -530,6 +535,7 @@ class TraceOptions:
     continue_tol_px: float = 1.0
     continue_gap_deg: float = 45.0
     cross_rounds_after: int = 1
+    far_end_check: bool = True
     from_segments: bool = True
 
 
@@ -884,6 +890,13 @@ def label_samples(
                     q, fam, sid, piece, ts, tangent, index, seed_jid, model, depth_range_mm,
                     options.cross_radius * model.junction_step_cam_px, options.cross_trim_sigma * sigma_px,
                     options, grid, rounds=options.cross_rounds_after, state=cross_state)
+        if options.far_end_check and model is not None and grid is not None:
+            # a seeded trace that ran across a depth edge onto a collinear line of another surface: the
+            # crossing at its far end names another line (decision 0084, `reconstruction.trace_ends`)
+            stats["samples_far_end_cut"] = cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, depth_range_mm,
+                                                        options.cross_radius * model.junction_step_cam_px,
+                                                        options.cross_residual_px, grid, UNLABELLED, options.cross_min_samples,
+                                                        options.seed_lateral_px * cell, ridge)
         if (options.cross_pieces or options.continue_lines) and model is not None:
             got = np.isfinite(index[sid])
         stats["samples_unseeded"] = int((~got).sum())
