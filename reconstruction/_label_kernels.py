@@ -1944,3 +1944,332 @@ def drop_unlabelled_junctions(index, seed_jid):
         else:
             seed_jid[s] = -1
     return m
+
+
+@njit
+def traces_from_segments(q, fam, seg, cen, dr, sel, link_px, lateral_px, cos_turn, w, ridge, ridge_step, use_ridge):
+    """The trace pieces of label_samples (step 3) from extraction's segments instead of a second neighbour
+    search over all samples (decision 0085). The samples sel (n,) (ascending ids) of one segment seg (P,)
+    (extraction's link before junctions and trims took samples out; −1: none, then the sample is a group
+    on its own) are a group, ordered along the segment's fitted line (t = (q − cen[g])·dr[g], camera px).
+    Groups whose end samples (first or last along t) lie within link_px of another group's end sample of
+    the same family are joined (where `traces` links samples across a break of the segments: a crossing's
+    core sample outside the mixing zone, a pair of segments the extraction's probes did not link); a joined
+    component is ordered along its principal axis, as `traces`. Components are numbered by their lowest
+    sample id, ordered by (t, id) and cut between consecutive samples where `traces` cuts: farther apart
+    than link_px, a sideways jump (lateral_px), a turn (cos_turn), or (use_ridge) a ridge brightness step;
+    ridge is indexed by sample id. Returns order (n,) positions in sel, piece (n,), t (n,) and unit
+    tangents (n, 2) in order's order, as `traces_of`."""
+    n = sel.shape[0]
+    S = cen.shape[0]
+    grp = np.empty(n, np.int64)
+    t = np.zeros(n)
+    gid = np.full(S, -1, np.int64)
+    # each group's two end samples (positions in sel; the lowest and highest t, the first on a tie)
+    e_lo = np.empty(n, np.intp)
+    e_hi = np.empty(n, np.intp)
+    t_lo = np.empty(n)
+    t_hi = np.empty(n)
+    ng = 0
+    for k in range(n):
+        s = sel[k]
+        g = seg[s]
+        if g < 0:
+            grp[k] = ng
+            e_lo[ng] = k
+            e_hi[ng] = k
+            ng += 1
+            continue
+        # t increases to the right (downwards on a vertical line), as along `traces`' principal axis
+        tk = (q[s, 0] - cen[g, 0]) * dr[g, 0] + (q[s, 1] - cen[g, 1]) * dr[g, 1]
+        if dr[g, 0] < 0 or (dr[g, 0] == 0 and dr[g, 1] < 0):
+            tk = -tk
+        if tk != tk:  # a degenerate fit: no order along it
+            tk = 0.0
+        t[k] = tk
+        h = gid[g]
+        if h < 0:
+            h = ng
+            gid[g] = h
+            ng += 1
+            e_lo[h] = k
+            e_hi[h] = k
+            t_lo[h] = tk
+            t_hi[h] = tk
+        elif tk < t_lo[h]:
+            e_lo[h] = k
+            t_lo[h] = tk
+        elif tk > t_hi[h]:
+            e_hi[h] = k
+            t_hi[h] = tk
+        grp[k] = h
+    # join groups at their ends
+    parent = join_group_ends(q, fam, sel, e_lo, e_hi, ng, link_px)
+    # components numbered by their lowest sample id (groups are, and a root is its lowest group)
+    cid = np.full(ng, -1, np.int64)
+    ngrp = np.zeros(ng, np.int64)
+    ncomp = 0
+    for g in range(ng):
+        ro = _union_find_root(parent, g)
+        if cid[ro] < 0:
+            cid[ro] = ncomp
+            ncomp += 1
+        cid[g] = cid[ro]
+        ngrp[cid[g]] += 1
+    comp = np.empty(n, np.int64)
+    for k in range(n):
+        comp[k] = cid[grp[k]]
+    # a joined component: t along its principal axis (as `traces`)
+    joined = False
+    for c in range(ncomp):
+        if ngrp[c] > 1:
+            joined = True
+            break
+    if joined:
+        jk = np.empty(n, np.intp)
+        nj = 0
+        for k in range(n):
+            if ngrp[comp[k]] > 1:
+                jk[nj] = k
+                nj += 1
+        cnt = np.zeros(ncomp)
+        sx = np.zeros(ncomp)
+        sy = np.zeros(ncomp)
+        for m in range(nj):
+            k = jk[m]
+            c = comp[k]
+            cnt[c] += 1.0
+            sx[c] += q[sel[k], 0]
+            sy[c] += q[sel[k], 1]
+        for c in range(ncomp):
+            if cnt[c] > 0:
+                sx[c] /= cnt[c]
+                sy[c] /= cnt[c]
+        sxy = np.zeros(ncomp)
+        sd = np.zeros(ncomp)
+        for m in range(nj):
+            k = jk[m]
+            c = comp[k]
+            dx = q[sel[k], 0] - sx[c]
+            dy = q[sel[k], 1] - sy[c]
+            sxy[c] += dx * dy
+            sd[c] += dx * dx - dy * dy
+        cth = np.zeros(ncomp)
+        sth = np.zeros(ncomp)
+        for c in range(ncomp):
+            if cnt[c] > 0:
+                th = 0.5 * math.atan2(2 * sxy[c], sd[c])
+                cth[c] = math.cos(th)
+                sth[c] = math.sin(th)
+        for m in range(nj):
+            k = jk[m]
+            c = comp[k]
+            t[k] = (q[sel[k], 0] - sx[c]) * cth[c] + (q[sel[k], 1] - sy[c]) * sth[c]
+    start = np.zeros(ncomp + 1, np.int64)
+    for k in range(n):
+        start[comp[k] + 1] += 1
+    for k in range(ncomp):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.intp)
+    for k in range(n):
+        order[fill[comp[k]]] = k
+        fill[comp[k]] += 1
+    # along the segment: raster order is nearly sorted one way or the other (reverse, then insertion sort
+    # on (t, id); many moves fall back to a stable mergesort), as in `traces`
+    for k in range(ncomp):
+        a, b = start[k], start[k + 1]
+        if b - a < 2:
+            continue
+        if t[order[b - 1]] < t[order[a]]:
+            for m in range((b - a) // 2):
+                v = order[a + m]
+                order[a + m] = order[b - 1 - m]
+                order[b - 1 - m] = v
+        budget = 8 * (b - a) + 64
+        moves = 0
+        for m in range(a + 1, b):
+            v = order[m]
+            tv = t[v]
+            j = m - 1
+            while j >= a and (t[order[j]] > tv or (t[order[j]] == tv and order[j] > v)):
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = v
+            moves += m - 1 - j
+            if moves > budget:
+                break
+        if moves > budget:
+            sg = np.sort(order[a:b])
+            srt = np.argsort(t[sg], kind="mergesort")
+            for m in range(b - a):
+                order[a + m] = sg[srt[m]]
+    qs = np.empty((n, 2))
+    ts = np.empty(n)
+    for k in range(n):
+        s = sel[order[k]]
+        qs[k, 0] = q[s, 0]
+        qs[k, 1] = q[s, 1]
+        ts[k] = t[order[k]]
+    # runs: the components split where consecutive samples lie farther apart than link_px (the mixing
+    # zone cut out, a segment running on across a crossing); the tangents' chords stay within a run, as
+    # within a component of `traces`
+    link2 = link_px * link_px
+    rstart = np.empty(n + 1, np.int64)
+    nrun = 0
+    for cpt in range(ncomp):
+        rstart[nrun] = start[cpt]
+        nrun += 1
+        for k in range(start[cpt], start[cpt + 1] - 1):
+            d0 = qs[k + 1, 0] - qs[k, 0]
+            d1 = qs[k + 1, 1] - qs[k, 1]
+            if d0 * d0 + d1 * d1 > link2:
+                rstart[nrun] = k + 1
+                nrun += 1
+    rstart[nrun] = n
+    piece = np.zeros(n, np.int64)
+    tangent = np.empty((n, 2))
+    eps32 = np.float32(1e-6)
+    cur = 0
+    for run in range(nrun):
+        first = rstart[run]
+        last = rstart[run + 1] - 1
+        for k in range(first, last + 1):
+            piece[k] = cur
+            kb = max(k - w, first)
+            kf = min(k + w, last)
+            tan0 = qs[kf, 0] - qs[kb, 0]
+            tan1 = qs[kf, 1] - qs[kb, 1]
+            lt = max(math.sqrt(tan0 * tan0 + tan1 * tan1), 1e-12)
+            T0 = tan0 / lt
+            T1 = tan1 / lt
+            tangent[k, 0] = T0
+            tangent[k, 1] = T1
+            if k == last:
+                continue
+            d0 = qs[k + 1, 0] - qs[k, 0]
+            d1 = qs[k + 1, 1] - qs[k, 1]
+            # (consecutive samples of a run are within link_px)
+            back0 = qs[k, 0] - qs[kb, 0]
+            back1 = qs[k, 1] - qs[kb, 1]
+            kf1 = min(k + 1 + w, last)
+            fwd0 = qs[kf1, 0] - qs[k + 1, 0]
+            fwd1 = qs[kf1, 1] - qs[k + 1, 1]
+            sb = back0 * back0 + back1 * back1
+            sf = fwd0 * fwd0 + fwd1 * fwd1
+            if sb >= 1.0:
+                lb = math.sqrt(sb)
+                B0 = back0 / lb
+                B1 = back1 / lb
+            else:
+                B0 = T0
+                B1 = T1
+            if sf >= 1.0:
+                lf = math.sqrt(sf)
+                F0 = fwd0 / lf
+                F1 = fwd1 / lf
+            else:
+                F0 = T0
+                F1 = T1
+            lateral = max(abs(d0 * B1 - d1 * B0), abs(d0 * F1 - d1 * F0))
+            along = abs(d0 * B0 + d1 * B1)
+            cut = lateral > lateral_px or along < lateral or B0 * F0 + B1 * F1 < cos_turn
+            if not cut and use_ridge:
+                r0 = ridge[sel[order[k]]]
+                r1 = ridge[sel[order[k + 1]]]
+                top = max(r1, r0)
+                if top < eps32:
+                    top = eps32
+                cut = abs(r1 - r0) > ridge_step * top
+            if cut:
+                cur += 1
+        cur += 1
+    return order, piece, ts, tangent
+
+
+@njit
+def join_group_ends(q, fam, sel, e_lo, e_hi, ng, link_px):
+    """`traces_from_segments`' joins: union–find parents (ng,) of the groups whose end samples (positions
+    e_lo, e_hi in sel) lie within link_px of another group's end of the same family. The ends are
+    bucketed per family in cells at least link_px wide (a cell and its forward neighbours hold every
+    pair once), their positions and groups copied in bucket order so that the search reads them in
+    sequence."""
+    parent = np.arange(ng)
+    if ng < 2:
+        return parent
+    cs = max(link_px, 8.0)
+    ne = 2 * ng
+    ex = np.empty(ne)
+    ey = np.empty(ne)
+    ef = np.empty(ne, np.intp)
+    for m in range(ne):
+        g = m if m < ng else m - ng
+        s = sel[e_lo[g] if m < ng else e_hi[g]]
+        ex[m] = q[s, 0]
+        ey[m] = q[s, 1]
+        # a single sample's second end is the same point: left out
+        ef[m] = -1 if (m >= ng and e_hi[g] == e_lo[g]) or (fam[s] != 1 and fam[s] != 2) else fam[s] - 1
+    x0 = ex.min()
+    y0 = ey.min()
+    gw = int((ex.max() - x0) / cs) + 1
+    gh = int((ey.max() - y0) / cs) + 1
+    nc = gw * gh
+    key = np.empty(ne, np.intp)
+    bstart = np.zeros(2 * nc + 1, np.intp)
+    for m in range(ne):
+        if ef[m] < 0:
+            key[m] = -1
+            continue
+        cx = min(int((ex[m] - x0) / cs), gw - 1)
+        cy = min(int((ey[m] - y0) / cs), gh - 1)
+        key[m] = ef[m] * nc + cy * gw + cx
+        bstart[key[m] + 1] += 1
+    for m in range(2 * nc):
+        bstart[m + 1] += bstart[m]
+    bfill = bstart[:-1].copy()
+    bx = np.empty(ne)
+    by = np.empty(ne)
+    bg = np.empty(ne, np.intp)
+    bk = np.empty(ne, np.intp)
+    nb = 0
+    for m in range(ne):
+        if key[m] < 0:
+            continue
+        it = bfill[key[m]]
+        bx[it] = ex[m]
+        by[it] = ey[m]
+        bg[it] = m if m < ng else m - ng
+        bk[it] = key[m]
+        bfill[key[m]] += 1
+        nb += 1
+    link2 = link_px * link_px
+    for i0 in range(nb):
+        k0 = bk[i0]
+        base = (k0 // nc) * nc
+        cell = k0 - base
+        cx = cell % gw
+        cy = cell // gw
+        g = bg[i0]
+        x = bx[i0]
+        y = by[i0]
+        for yy in range(cy, min(cy + 2, gh)):
+            # this row: the cell's later items and the next cell; the row below: three cells
+            if yy == cy:
+                lo = i0 + 1
+                hi = bstart[base + yy * gw + min(cx + 1, gw - 1) + 1]
+            else:
+                lo = bstart[base + yy * gw + max(cx - 1, 0)]
+                hi = bstart[base + yy * gw + min(cx + 1, gw - 1) + 1]
+            for it in range(lo, hi):
+                d0 = bx[it] - x
+                d1 = by[it] - y
+                if d0 * d0 + d1 * d1 <= link2:
+                    g2 = bg[it]
+                    ra = _union_find_root(parent, g)
+                    rb = _union_find_root(parent, g2)
+                    if ra != rb:
+                        if ra < rb:
+                            parent[rb] = ra
+                        else:
+                            parent[ra] = rb
+    return parent

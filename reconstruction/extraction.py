@@ -119,6 +119,9 @@ class GridObservation:
     Edges (E): edges (E, 2) junction ids a → b, edge_family (E,), edge_delta (E, 2) the change of (i, j)
         from a to b (±1 in the index of the other family), edge_segment (E,).
     stats: counts, reasons and `ms` (time per stage).
+    segment_linked (P,) int: the segment each sample was linked into before kept junctions, free-end trims
+        and biased crossings took samples out of it (−1: a crossing's core or a single sample); the label
+        stage's trace pieces are built from it (decision 0085). None where an observation was made without.
     """
 
     q: np.ndarray
@@ -139,6 +142,7 @@ class GridObservation:
     edge_segment: np.ndarray
     stats: dict
     junction_rms: np.ndarray | None = None
+    segment_linked: np.ndarray | None = None
 
 
 def to_grey_float(image: np.ndarray) -> np.ndarray:
@@ -511,4 +515,5 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         edge_segment=sid[good],
         stats=stats,
         junction_rms=junction_rms,
+        segment_linked=seg,
     )

@@ -505,6 +505,10 @@ class TraceOptions:
         that end, with a labelled line of the other family, names another line of the piece's family (the
         crossing check above, cross_radius and cross_residual_px): the trace ran across a depth edge onto a
         collinear line of another surface (decision 0084, `reconstruction.trace_ends`).
+    from_segments: build the trace pieces from extraction's segments (`GridObservation.segment_linked`:
+        ordered along each segment's fitted line, joined where segment ends, or a kept sample outside every
+        segment, lie within link_px of one another, then cut by the rules above) instead of linking the
+        samples again (decision 0085); observations without `segment_linked` are linked again.
     """
 
     mix_sigma: float = 2.0
@@ -532,6 +536,7 @@ class TraceOptions:
     continue_gap_deg: float = 45.0
     cross_rounds_after: int = 1
     far_end_check: bool = True
+    from_segments: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -769,8 +774,10 @@ def label_samples(
     """Give every line sample the index of its line, following the visible trace of the line from the
     labelled junctions on it.
 
-    Samples of one family are linked into trace pieces (neighbours within `link_px`, cut where the line
-    jumps sideways by more than `lateral_px` or turns by more than `max_turn_deg`); samples near a labelled
+    Samples of one family are linked into trace pieces (extraction's segments, joined where their ends lie
+    within `link_px` of one another, split where consecutive samples lie farther apart, decision 0085; or,
+    with `from_segments` off, neighbours within `link_px`), cut where the line
+    jumps sideways by more than `lateral_px` or turns by more than `max_turn_deg`; samples near a labelled
     junction, on the junction's fitted line, are seeds carrying the junction's index; every sample takes
     the index of the nearest seed along its piece. A piece therefore carries the index from a labelled
     junction through unlabelled crossings' gaps only where its samples stay linked, out to the image
@@ -837,10 +844,19 @@ def label_samples(
     k_idx = np.flatnonzero(kept)
     if len(k_idx):
         use_ridge = ridge is not None and options.max_ridge_step > 0
-        order, piece, ts, tangent = _k.traces_of(
-            q, fam, r, c, k_idx.astype(np.intp), int(H), int(W), float(options.link_px * cell), float(options.lateral_px),
-            float(np.cos(np.deg2rad(options.max_turn_deg))), max(1, int(round(options.direction_px))),
-            ridge if use_ridge else np.zeros(0, np.float32), np.float32(options.max_ridge_step), use_ridge)
+        seg_linked = getattr(obs, "segment_linked", None)
+        if options.from_segments and seg_linked is not None and len(seg_linked) == P:
+            # one linking: extraction's segments, ordered along their fitted lines and cut (decision 0085)
+            order, piece, ts, tangent = _k.traces_from_segments(
+                q, fam, np.asarray(seg_linked, np.int64), np.ascontiguousarray(obs.segment_centre, np.float64).reshape(-1, 2),
+                np.ascontiguousarray(obs.segment_dir, np.float64).reshape(-1, 2), k_idx.astype(np.intp), float(options.link_px * cell),
+                float(options.lateral_px), float(np.cos(np.deg2rad(options.max_turn_deg))), max(1, int(round(options.direction_px))),
+                ridge if use_ridge else np.zeros(0, np.float32), np.float32(options.max_ridge_step), use_ridge)
+        else:
+            order, piece, ts, tangent = _k.traces_of(
+                q, fam, r, c, k_idx.astype(np.intp), int(H), int(W), float(options.link_px * cell), float(options.lateral_px),
+                float(np.cos(np.deg2rad(options.max_turn_deg))), max(1, int(round(options.direction_px))),
+                ridge if use_ridge else np.zeros(0, np.float32), np.float32(options.max_ridge_step), use_ridge)
         sid = k_idx[order]
         stats["traces"] = int(piece[-1]) + 1
         got, n_seeded, n_conflicting = _k.spread_seeds(sid, piece, ts, seed, seed_jid, index, UNLABELLED)
