@@ -214,3 +214,135 @@ def cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, dept
         return 0
     use_ridge = ridge is not None and len(ridge) == len(q)
     return int(unlabel_stretches(cut, lo, hi, sign, beyond, sid, ridge if use_ridge else np.zeros(0, np.float32), use_ridge, index, seed_jid))
+
+
+@njit
+def _facing_cuts(q, fam, sid, piece, tangent, index, seed_jid, q_junction, ridge, use_ridge, reach, lateral_px,
+                 x0, y0, cell, gw, gh, start, items, pos_of):
+    """`cut_facing_ends`' loop (its doc). Returns the trace positions (lo, hi) of the stretches to unlabel."""
+    n = sid.shape[0]
+    lo_out = np.empty(2 * n, np.intp)
+    hi_out = np.empty(2 * n, np.intp)
+    c = 0
+    a = 0
+    while a < n:
+        p = piece[a]
+        b = a
+        while b + 1 < n and piece[b + 1] == p:
+            b += 1
+        for side in range(2):
+            pe = a if side == 0 else b
+            step = -1 if side == 0 else 1  # towards the end
+            se = sid[pe]
+            k = index[se]
+            if not math.isfinite(k):
+                continue
+            dx = step * tangent[pe, 0]
+            dy = step * tangent[pe, 1]
+            # the nearest labelled sample of the family ahead of the end, on its tangent line, not on this piece
+            best = -1
+            best_a = np.inf
+            cx = int(math.floor((q[se, 0] - x0) / cell))
+            cy = int(math.floor((q[se, 1] - y0) / cell))
+            for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
+                for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
+                    bb = yy * gw + xx
+                    for t in range(start[bb], start[bb + 1]):
+                        s = items[t]
+                        if fam[s] != fam[se] or not math.isfinite(index[s]):
+                            continue
+                        ps = pos_of[s]
+                        if ps >= 0 and piece[ps] == p:
+                            continue
+                        wx = q[s, 0] - q[se, 0]
+                        wy = q[s, 1] - q[se, 1]
+                        al = wx * dx + wy * dy
+                        if al > 0.5 and al <= reach and abs(wx * dy - wy * dx) <= lateral_px and al < best_a:
+                            best_a = al
+                            best = s
+            if best < 0 or index[best] == k:
+                continue
+            # the stretch: from the piece's sample nearest its junction (not past it) out to the end
+            u0 = b if side == 0 else a
+            j = seed_jid[se]
+            if j >= 0:
+                dmin = np.inf
+                for u in range(a, b + 1):
+                    d = math.hypot(q[sid[u], 0] - q_junction[j, 0], q[sid[u], 1] - q_junction[j, 1])
+                    if d < dmin:
+                        dmin = d
+                        u0 = u
+            m = (pe - u0) * step  # steps inside the stretch
+            if m < 1:
+                continue
+            if not use_ridge:
+                cut_from = u0 + step
+            else:
+                # ridge steps along u0 -> end -> the facing sample; the largest one is the edge
+                top = -1.0
+                at = -1
+                for i in range(m + 1):
+                    r0 = ridge[sid[u0 + i * step]]
+                    r1 = ridge[best] if i == m else ridge[sid[u0 + (i + 1) * step]]
+                    d = abs(r1 - r0)
+                    if d > top:
+                        top = d
+                        at = i
+                if at >= m:
+                    continue  # the edge is between the end and the facing line: nothing on this piece
+                i0 = at + 1
+                r_hi = ridge[sid[u0 + i0 * step]]
+                if r_hi > ridge[sid[u0 + at * step]]:
+                    # rising towards the end: the samples before the step are the dimmed ones next to the edge
+                    # (each line's profile is cut by the occluding edge); the edge lies among them
+                    i = at
+                    while i >= 1 and ridge[sid[u0 + i * step]] < r_hi - 0.5 * top:
+                        i0 = i
+                        i -= 1
+                cut_from = u0 + i0 * step
+            if step > 0:
+                lo_out[c] = cut_from
+                hi_out[c] = pe
+            else:
+                lo_out[c] = pe
+                hi_out[c] = cut_from
+            c += 1
+        a = b + 1
+    return lo_out[:c], hi_out[:c]
+
+
+def cut_facing_ends(q, fam, sid, piece, tangent, index, seed_jid, q_junction, grid: tuple, *, reach_px: float,
+                    lateral_px: float, ridge: np.ndarray | None = None) -> int:
+    """Take the label off a labelled piece's end that runs into a collinear labelled line of its own family
+    with another index (decision 0084, round 4b).
+
+    A line of the pattern cannot continue into another line of the same family on one continuous surface:
+    where a piece labelled k ends and, within reach_px ahead on its end's tangent (within lateral_px across
+    it), the nearest labelled sample of its family (another piece, or a junction's snapped seed) carries
+    k' ≠ k, a depth edge lies between the two labels' junctions. On this piece it is put at the largest
+    ridge-brightness step along the stretch from the piece's sample nearest its junction (seed_jid) to the
+    end and on to the facing sample; if that step rises towards the end, the dimmed samples before it (below
+    its midpoint: both lines' profiles are cut by the edge) go too. If the largest step is the one across to
+    the facing sample, nothing on this piece is cut (the other piece's own check decides for it). Without a
+    ridge the whole stretch but its first sample goes. The stretch is not relabelled.
+
+    q (P, 2) camera px; fam (P,); sid, piece, tangent: the traces (positions in order); index (P,) float and
+    seed_jid (P,), modified in place (NaN, −1); q_junction (M, 2) camera px; grid: `labelling._sample_grid`,
+    cells at least reach_px wide; ridge (P,): `labelling._ridge_brightness`. Contradictions are found on the
+    labels as they are on entry, then all cuts applied. Returns the number of samples that lost their label.
+    """
+    if len(sid) == 0:
+        return 0
+    use_ridge = ridge is not None and len(ridge) == len(q)
+    qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
+    lo, hi = _facing_cuts(q, fam, sid, piece, tangent, index, seed_jid, qj,
+                          ridge if use_ridge else np.zeros(0, np.float32), use_ridge, float(min(reach_px, grid[2])),
+                          float(lateral_px), *grid[:7], grid[7])
+    m = 0
+    for a, b in zip(lo, hi):
+        s = sid[a:b + 1]
+        f = np.isfinite(index[s])
+        m += int(f.sum())
+        index[s] = np.nan
+        seed_jid[s] = -1
+    return m
