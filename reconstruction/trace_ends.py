@@ -216,9 +216,82 @@ def cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, dept
     return int(unlabel_stretches(cut, lo, hi, sign, beyond, sid, ridge if use_ridge else np.zeros(0, np.float32), use_ridge, index, seed_jid))
 
 
+DIP_SAMPLES = 2  # samples next to an occluding edge whose line profile it cuts (about a line width)
+
+
+@njit
+def _stretch_start(a, b, end, q, sid, q_junction, j):
+    """The trace position in a..b nearest junction j (camera px), or the piece's other end when j < 0."""
+    u0 = b if end == a else a
+    if j >= 0:
+        dmin = np.inf
+        for u in range(a, b + 1):
+            d = math.hypot(q[sid[u], 0] - q_junction[j, 0], q[sid[u], 1] - q_junction[j, 1])
+            if d < dmin:
+                dmin = d
+                u0 = u
+    return u0
+
+
+@njit
+def _facing_candidates(sid, piece, index, q, fam, items, pos_of, x0, y0, cell, gw, gh):
+    """The samples an end can face, bucketed on the crossing grid's cells: the labelled ends of trace pieces and
+    the labelled samples on no trace (a junction's snapped seeds in the mixing zone). (start, items) as the
+    grid's (a third of its samples), and each one's record (x, y, family, index) in the same order (read
+    contiguously by the search)."""
+    n = sid.shape[0]
+    cand = np.empty(2 * n + pos_of.shape[0], np.intp)
+    m = 0
+    for u in range(n):
+        if (u == 0 or piece[u - 1] != piece[u] or u == n - 1 or piece[u + 1] != piece[u]) and math.isfinite(index[sid[u]]):
+            cand[m] = sid[u]
+            m += 1
+    for s in range(pos_of.shape[0]):  # samples on no trace (invalid ones carry no index)
+        if pos_of[s] < 0 and math.isfinite(index[s]):
+            cand[m] = s
+            m += 1
+    nc = gw * gh
+    cnt = np.zeros(nc + 1, np.intp)
+    cid = np.empty(m, np.intp)
+    for i in range(m):
+        s = cand[i]
+        xx = min(max(int(math.floor((q[s, 0] - x0) / cell)), 0), gw - 1)
+        yy = min(max(int(math.floor((q[s, 1] - y0) / cell)), 0), gh - 1)
+        cid[i] = yy * gw + xx
+        cnt[cid[i] + 1] += 1
+    for b in range(nc):
+        cnt[b + 1] += cnt[b]
+    out = np.empty(m, np.intp)
+    rec = np.empty((m, 4))
+    fill = cnt[:nc].copy()
+    for i in range(m):
+        j = fill[cid[i]]
+        s = cand[i]
+        out[j] = s
+        rec[j, 0] = q[s, 0]
+        rec[j, 1] = q[s, 1]
+        rec[j, 2] = fam[s]
+        rec[j, 3] = index[s]
+        fill[cid[i]] += 1
+    # per cell and family: the one index its candidates carry, −1 none, −2 several (the search skips an end
+    # whose cells hold only its own index)
+    one = np.full((nc, 2), -1, np.int32)
+    for j in range(m):
+        xx = min(max(int(math.floor((rec[j, 0] - x0) / cell)), 0), gw - 1)
+        yy = min(max(int(math.floor((rec[j, 1] - y0) / cell)), 0), gh - 1)
+        b = yy * gw + xx
+        f = int(rec[j, 2]) - 1
+        v = int(rec[j, 3])
+        if one[b, f] == -1:
+            one[b, f] = v
+        elif one[b, f] != v:
+            one[b, f] = -2
+    return cnt, out, rec, one
+
+
 @njit
 def _facing_cuts(q, fam, sid, piece, tangent, index, seed_jid, q_junction, ridge, use_ridge, reach, lateral_px,
-                 x0, y0, cell, gw, gh, start, items, pos_of):
+                 x0, y0, cell, gw, gh, start, items, rec, one, pos_of):
     """`cut_facing_ends`' loop (its doc). Returns the trace positions (lo, hi) of the stretches to unlabel."""
     n = sid.shape[0]
     lo_out = np.empty(2 * n, np.intp)
@@ -239,66 +312,95 @@ def _facing_cuts(q, fam, sid, piece, tangent, index, seed_jid, q_junction, ridge
                 continue
             dx = step * tangent[pe, 0]
             dy = step * tangent[pe, 1]
-            # the nearest labelled sample of the family ahead of the end, on its tangent line, not on this piece
+            ex = q[se, 0]
+            ey = q[se, 1]
+            fe = float(fam[se])
+            # the nearest labelled sample of the family ahead of the end, on its tangent line, not on this
+            # piece; the cells under the box of the segment e .. e + reach·d (widened by lateral_px)
+            bx0 = min(ex, ex + reach * dx) - lateral_px
+            bx1 = max(ex, ex + reach * dx) + lateral_px
+            by0 = min(ey, ey + reach * dy) - lateral_px
+            by1 = max(ey, ey + reach * dy) + lateral_px
             best = -1
             best_a = np.inf
-            cx = int(math.floor((q[se, 0] - x0) / cell))
-            cy = int(math.floor((q[se, 1] - y0) / cell))
-            for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
-                for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
+            ya = max(int(math.floor((by0 - y0) / cell)), 0)
+            yb = min(int(math.floor((by1 - y0) / cell)) + 1, gh)
+            xa = max(int(math.floor((bx0 - x0) / cell)), 0)
+            xb = min(int(math.floor((bx1 - x0) / cell)) + 1, gw)
+            other = False  # a cell whose candidates of this family carry another index
+            fi = fam[se] - 1
+            for yy in range(ya, yb):
+                for xx in range(xa, xb):
+                    v = one[yy * gw + xx, fi]
+                    if v != -1 and v != k:
+                        other = True
+            if not other:
+                continue
+            for yy in range(ya, yb):
+                for xx in range(xa, xb):
                     bb = yy * gw + xx
                     for t in range(start[bb], start[bb + 1]):
-                        s = items[t]
-                        if fam[s] != fam[se] or not math.isfinite(index[s]):
+                        if rec[t, 2] != fe:
                             continue
-                        ps = pos_of[s]
-                        if ps >= 0 and piece[ps] == p:
-                            continue
-                        wx = q[s, 0] - q[se, 0]
-                        wy = q[s, 1] - q[se, 1]
+                        wx = rec[t, 0] - ex
+                        wy = rec[t, 1] - ey
                         al = wx * dx + wy * dy
-                        if al > 0.5 and al <= reach and abs(wx * dy - wy * dx) <= lateral_px and al < best_a:
+                        if al > 0.5 and al <= reach and al < best_a and abs(wx * dy - wy * dx) <= lateral_px:
+                            s = items[t]
+                            ps = pos_of[s]
+                            if ps >= 0 and piece[ps] == p:
+                                continue
                             best_a = al
                             best = s
             if best < 0 or index[best] == k:
                 continue
-            # the stretch: from the piece's sample nearest its junction (not past it) out to the end
-            u0 = b if side == 0 else a
-            j = seed_jid[se]
-            if j >= 0:
-                dmin = np.inf
-                for u in range(a, b + 1):
-                    d = math.hypot(q[sid[u], 0] - q_junction[j, 0], q[sid[u], 1] - q_junction[j, 1])
-                    if d < dmin:
-                        dmin = d
-                        u0 = u
-            m = (pe - u0) * step  # steps inside the stretch
+            # this piece's stretch: from its sample nearest its junction out to the end
+            u0 = _stretch_start(a, b, pe, q, sid, q_junction, seed_jid[se])
+            m = (pe - u0) * step
             if m < 1:
                 continue
             if not use_ridge:
                 cut_from = u0 + step
             else:
-                # ridge steps along u0 -> end -> the facing sample; the largest one is the edge
+                # ridge steps along u0 .. end, across to the facing sample, and on along the facing piece to its
+                # sample nearest its junction: the largest one is the edge; on this piece only if before the gap
                 top = -1.0
                 at = -1
-                for i in range(m + 1):
-                    r0 = ridge[sid[u0 + i * step]]
-                    r1 = ridge[best] if i == m else ridge[sid[u0 + (i + 1) * step]]
-                    d = abs(r1 - r0)
+                for i in range(m):
+                    d = abs(ridge[sid[u0 + (i + 1) * step]] - ridge[sid[u0 + i * step]])
                     if d > top:
                         top = d
                         at = i
-                if at >= m:
-                    continue  # the edge is between the end and the facing line: nothing on this piece
+                across = abs(ridge[best] - ridge[se])
+                far = 0.0
+                pf = pos_of[best]
+                if pf >= 0:
+                    fa = pf
+                    while fa > 0 and piece[fa - 1] == piece[pf]:
+                        fa -= 1
+                    fb = pf
+                    while fb + 1 < n and piece[fb + 1] == piece[pf]:
+                        fb += 1
+                    if pf == fa or pf == fb:
+                        f0 = _stretch_start(fa, fb, pf, q, sid, q_junction, seed_jid[best])
+                        fs = 1 if f0 > pf else -1
+                        u = pf
+                        while u != f0:
+                            far = max(far, abs(ridge[sid[u + fs]] - ridge[sid[u]]))
+                            u += fs
+                if across >= top or far > top:
+                    continue  # the edge is at the gap or on the facing piece: nothing on this one
                 i0 = at + 1
                 r_hi = ridge[sid[u0 + i0 * step]]
                 if r_hi > ridge[sid[u0 + at * step]]:
-                    # rising towards the end: the samples before the step are the dimmed ones next to the edge
-                    # (each line's profile is cut by the occluding edge); the edge lies among them
+                    # rising towards the end: if the samples before the step are a short dip (brighter again
+                    # before it), they are the ones next to the edge whose line profile it cuts: the edge is
+                    # among them, they go too
                     i = at
-                    while i >= 1 and ridge[sid[u0 + i * step]] < r_hi - 0.5 * top:
-                        i0 = i
+                    while i >= 1 and at - i < DIP_SAMPLES and ridge[sid[u0 + i * step]] < r_hi - 0.5 * top:
                         i -= 1
+                    if ridge[sid[u0 + i * step]] >= r_hi - 0.5 * top:
+                        i0 = i + 1
                 cut_from = u0 + i0 * step
             if step > 0:
                 lo_out[c] = cut_from
@@ -335,9 +437,11 @@ def cut_facing_ends(q, fam, sid, piece, tangent, index, seed_jid, q_junction, gr
         return 0
     use_ridge = ridge is not None and len(ridge) == len(q)
     qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
+    x0, y0, cell, gw, gh, _, items, pos_of = grid
+    start, cand, rec, one = _facing_candidates(sid, piece, index, q, fam, items, pos_of, x0, y0, cell, gw, gh)
     lo, hi = _facing_cuts(q, fam, sid, piece, tangent, index, seed_jid, qj,
-                          ridge if use_ridge else np.zeros(0, np.float32), use_ridge, float(min(reach_px, grid[2])),
-                          float(lateral_px), *grid[:7], grid[7])
+                          ridge if use_ridge else np.zeros(0, np.float32), use_ridge, float(min(reach_px, cell)),
+                          float(lateral_px), x0, y0, cell, gw, gh, start, cand, rec, one, pos_of)
     m = 0
     for a, b in zip(lo, hi):
         s = sid[a:b + 1]
