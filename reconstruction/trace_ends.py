@@ -263,30 +263,88 @@ def _facing_candidates(sid, piece, index, q, fam, items, pos_of, x0, y0, cell, g
         cnt[b + 1] += cnt[b]
     out = np.empty(m, np.intp)
     rec = np.empty((m, 4))
+    # per cell and family: the one index its candidates carry, −1 none, −2 several (the search skips an end
+    # whose cells hold only its own index)
+    one = np.full((nc, 2), -1, np.int32)
     fill = cnt[:nc].copy()
     for i in range(m):
-        j = fill[cid[i]]
+        b = cid[i]
+        j = fill[b]
         s = cand[i]
         out[j] = s
         rec[j, 0] = q[s, 0]
         rec[j, 1] = q[s, 1]
         rec[j, 2] = fam[s]
         rec[j, 3] = index[s]
-        fill[cid[i]] += 1
-    # per cell and family: the one index its candidates carry, −1 none, −2 several (the search skips an end
-    # whose cells hold only its own index)
-    one = np.full((nc, 2), -1, np.int32)
-    for j in range(m):
-        xx = min(max(int(math.floor((rec[j, 0] - x0) / cell)), 0), gw - 1)
-        yy = min(max(int(math.floor((rec[j, 1] - y0) / cell)), 0), gh - 1)
-        b = yy * gw + xx
-        f = int(rec[j, 2]) - 1
-        v = int(rec[j, 3])
+        fill[b] += 1
+        f = fam[s] - 1
+        v = int(index[s])
         if one[b, f] == -1:
             one[b, f] = v
         elif one[b, f] != v:
             one[b, f] = -2
     return cnt, out, rec, one
+
+
+@njit
+def _run(u, sid, piece, index):
+    """The trace positions (lo, hi) of the run of position u: its piece's consecutive samples with u's index."""
+    n = sid.shape[0]
+    v = index[sid[u]]
+    lo = u
+    while lo > 0 and piece[lo - 1] == piece[u] and index[sid[lo - 1]] == v:
+        lo -= 1
+    hi = u
+    while hi + 1 < n and piece[hi + 1] == piece[u] and index[sid[hi + 1]] == v:
+        hi += 1
+    return lo, hi
+
+
+@njit
+def _edge_cut(pe, step, best, q, sid, piece, index, seed_jid, q_junction, ridge, use_ridge, pos_of):
+    """Where the run ending at trace position pe (step +1: it ends at its last sample, −1 at its first) loses
+    its label, given the facing sample best of another index: the trace position the cut starts from (the cut
+    runs from there to pe), or −1 for none. `cut_facing_ends` explains the rule."""
+    ra, rb = _run(pe, sid, piece, index)
+    u0 = _stretch_start(ra, rb, pe, q, sid, q_junction, seed_jid[sid[pe]])
+    m = (pe - u0) * step
+    if m < 1:
+        return -1
+    if not use_ridge:
+        return u0 + step
+    # ridge steps along u0 .. end, across to the facing sample, and on along the facing run to its sample
+    # nearest its junction: the largest one is the edge; on this run only if before the gap
+    top = -1.0
+    at = -1
+    for i in range(m):
+        d = abs(ridge[sid[u0 + (i + 1) * step]] - ridge[sid[u0 + i * step]])
+        if d > top:
+            top = d
+            at = i
+    across = abs(ridge[best] - ridge[sid[pe]])
+    far = 0.0
+    pf = pos_of[best]
+    if pf >= 0:
+        fa, fb = _run(pf, sid, piece, index)
+        f0 = _stretch_start(fa, fb, pf, q, sid, q_junction, seed_jid[best])
+        fs = 1 if f0 > pf else -1
+        u = pf
+        while u != f0:
+            far = max(far, abs(ridge[sid[u + fs]] - ridge[sid[u]]))
+            u += fs
+    if across >= top or far > top:
+        return -1  # the edge is at the gap or on the facing run: nothing on this one
+    i0 = at + 1
+    r_hi = ridge[sid[u0 + i0 * step]]
+    if r_hi > ridge[sid[u0 + at * step]]:
+        # rising towards the end: if the samples before the step are a short dip (brighter again before it),
+        # they are the ones next to the edge whose line profile it cuts: the edge is among them, they go too
+        i = at
+        while i >= 1 and at - i < DIP_SAMPLES and ridge[sid[u0 + i * step]] < r_hi - 0.5 * top:
+            i -= 1
+        if ridge[sid[u0 + i * step]] >= r_hi - 0.5 * top:
+            i0 = i + 1
+    return u0 + i0 * step
 
 
 @njit
@@ -303,6 +361,7 @@ def _facing_cuts(q, fam, sid, piece, tangent, index, seed_jid, q_junction, ridge
         b = a
         while b + 1 < n and piece[b + 1] == p:
             b += 1
+        # the piece's ends: the nearest labelled sample of the family ahead, off the piece
         for side in range(2):
             pe = a if side == 0 else b
             step = -1 if side == 0 else 1  # towards the end
@@ -315,19 +374,17 @@ def _facing_cuts(q, fam, sid, piece, tangent, index, seed_jid, q_junction, ridge
             ex = q[se, 0]
             ey = q[se, 1]
             fe = float(fam[se])
-            # the nearest labelled sample of the family ahead of the end, on its tangent line, not on this
-            # piece; the cells under the box of the segment e .. e + reach·d (widened by lateral_px)
+            # the cells under the box of the segment e .. e + reach·d (widened by lateral_px); skipped when
+            # they hold no candidate of this family with another index
             bx0 = min(ex, ex + reach * dx) - lateral_px
             bx1 = max(ex, ex + reach * dx) + lateral_px
             by0 = min(ey, ey + reach * dy) - lateral_px
             by1 = max(ey, ey + reach * dy) + lateral_px
-            best = -1
-            best_a = np.inf
             ya = max(int(math.floor((by0 - y0) / cell)), 0)
             yb = min(int(math.floor((by1 - y0) / cell)) + 1, gh)
             xa = max(int(math.floor((bx0 - x0) / cell)), 0)
             xb = min(int(math.floor((bx1 - x0) / cell)) + 1, gw)
-            other = False  # a cell whose candidates of this family carry another index
+            other = False
             fi = fam[se] - 1
             for yy in range(ya, yb):
                 for xx in range(xa, xb):
@@ -336,6 +393,8 @@ def _facing_cuts(q, fam, sid, piece, tangent, index, seed_jid, q_junction, ridge
                         other = True
             if not other:
                 continue
+            best = -1
+            best_a = np.inf
             for yy in range(ya, yb):
                 for xx in range(xa, xb):
                     bb = yy * gw + xx
@@ -354,64 +413,13 @@ def _facing_cuts(q, fam, sid, piece, tangent, index, seed_jid, q_junction, ridge
                             best = s
             if best < 0 or index[best] == k:
                 continue
-            # this piece's stretch: from its sample nearest its junction out to the end
-            u0 = _stretch_start(a, b, pe, q, sid, q_junction, seed_jid[se])
-            m = (pe - u0) * step
-            if m < 1:
-                continue
-            if not use_ridge:
-                cut_from = u0 + step
-            else:
-                # ridge steps along u0 .. end, across to the facing sample, and on along the facing piece to its
-                # sample nearest its junction: the largest one is the edge; on this piece only if before the gap
-                top = -1.0
-                at = -1
-                for i in range(m):
-                    d = abs(ridge[sid[u0 + (i + 1) * step]] - ridge[sid[u0 + i * step]])
-                    if d > top:
-                        top = d
-                        at = i
-                across = abs(ridge[best] - ridge[se])
-                far = 0.0
-                pf = pos_of[best]
-                if pf >= 0:
-                    fa = pf
-                    while fa > 0 and piece[fa - 1] == piece[pf]:
-                        fa -= 1
-                    fb = pf
-                    while fb + 1 < n and piece[fb + 1] == piece[pf]:
-                        fb += 1
-                    if pf == fa or pf == fb:
-                        f0 = _stretch_start(fa, fb, pf, q, sid, q_junction, seed_jid[best])
-                        fs = 1 if f0 > pf else -1
-                        u = pf
-                        while u != f0:
-                            far = max(far, abs(ridge[sid[u + fs]] - ridge[sid[u]]))
-                            u += fs
-                if across >= top or far > top:
-                    continue  # the edge is at the gap or on the facing piece: nothing on this one
-                i0 = at + 1
-                r_hi = ridge[sid[u0 + i0 * step]]
-                if r_hi > ridge[sid[u0 + at * step]]:
-                    # rising towards the end: if the samples before the step are a short dip (brighter again
-                    # before it), they are the ones next to the edge whose line profile it cuts: the edge is
-                    # among them, they go too
-                    i = at
-                    while i >= 1 and at - i < DIP_SAMPLES and ridge[sid[u0 + i * step]] < r_hi - 0.5 * top:
-                        i -= 1
-                    if ridge[sid[u0 + i * step]] >= r_hi - 0.5 * top:
-                        i0 = i + 1
-                cut_from = u0 + i0 * step
-            if step > 0:
-                lo_out[c] = cut_from
-                hi_out[c] = pe
-            else:
-                lo_out[c] = pe
-                hi_out[c] = cut_from
-            c += 1
+            cf = _edge_cut(pe, step, best, q, sid, piece, index, seed_jid, q_junction, ridge, use_ridge, pos_of)
+            if cf >= 0:
+                lo_out[c] = min(cf, pe)
+                hi_out[c] = max(cf, pe)
+                c += 1
         a = b + 1
     return lo_out[:c], hi_out[:c]
-
 
 def cut_facing_ends(q, fam, sid, piece, tangent, index, seed_jid, q_junction, grid: tuple, *, reach_px: float,
                     lateral_px: float, ridge: np.ndarray | None = None) -> int:
