@@ -15,6 +15,11 @@ line m are on one surface (the check of decision 0052, `RigModel.sheet_check`). 
 k' ≠ k within `cross_residual_px`, inside the depth range, the stretch of the piece between its outermost
 seed and that end is not on line k's surface all the way: its samples lose the label (the seeded stretch
 and the other side keep it; the stretch is not relabelled k': the edge lies somewhere inside it).
+
+Round 4b (`cut_facing_ends`): a labelled piece's end that runs, across a gap no longer than a crossing's, into
+the nearest labelled sample of its own family on its tangent carrying another index is at a depth edge too (a
+line cannot continue into another line of its family on one surface); the edge is put at the largest
+ridge-brightness step between the two labels' junctions.
 """
 
 from __future__ import annotations
@@ -234,7 +239,7 @@ def _stretch_start(a, b, end, q, sid, q_junction, j):
 
 
 @njit
-def _facing_candidates(sid, piece, index, q, fam, items, pos_of, x0, y0, cell, gw, gh):
+def _facing_candidates(sid, piece, index, q, fam, pos_of, x0, y0, cell, gw, gh):
     """The samples an end can face, bucketed on the crossing grid's cells: the labelled ends of trace pieces and
     the labelled samples on no trace (a junction's snapped seeds in the mixing zone). (start, items) as the
     grid's (a third of its samples), and each one's record (x, y, family, index) in the same order (read
@@ -429,16 +434,19 @@ def cut_facing_ends(q, fam, sid, piece, tangent, index, seed_jid, q_junction, gr
     A line of the pattern cannot continue into another line of the same family on one continuous surface:
     where a piece labelled k ends and, within reach_px ahead on its end's tangent (within lateral_px across
     it), the nearest labelled sample of its family (another piece, or a junction's snapped seed) carries
-    k' ≠ k, a depth edge lies between the two labels' junctions. On this piece it is put at the largest
-    ridge-brightness step along the stretch from the piece's sample nearest its junction (seed_jid) to the
-    end and on to the facing sample; if that step rises towards the end, the dimmed samples before it (below
-    its midpoint: both lines' profiles are cut by the edge) go too. If the largest step is the one across to
-    the facing sample, nothing on this piece is cut (the other piece's own check decides for it). Without a
-    ridge the whole stretch but its first sample goes. The stretch is not relabelled.
+    k' ≠ k, a depth edge lies between the two labels' junctions. It is put at the largest ridge-brightness
+    step along the stretch from the piece's sample nearest its junction (seed_jid) to the end, across the gap,
+    and on along the facing run to its sample nearest its own junction. If that step is on this piece, the
+    samples from it to the end lose their label; if it rises towards the end and the samples before it are a
+    dip of at most DIP_SAMPLES (below the step's midpoint, brighter again before it: the samples on both sides
+    of an occluding edge have their line profile cut by it), the dip goes too. If it is the gap's step or on
+    the facing run, nothing on this piece is cut (the facing piece's own check decides for it). Without a
+    ridge the whole stretch but its first sample goes. The stretch is not relabelled. Ends inside a piece
+    (seeds that disagree, split by `spread_seeds`) are not checked (decision 0084, round 4b).
 
     q (P, 2) camera px; fam (P,); sid, piece, tangent: the traces (positions in order); index (P,) float and
-    seed_jid (P,), modified in place (NaN, −1); q_junction (M, 2) camera px; grid: `labelling._sample_grid`,
-    cells at least reach_px wide; ridge (P,): `labelling._ridge_brightness`. Contradictions are found on the
+    seed_jid (P,), modified in place (NaN, −1); q_junction (M, 2) camera px; grid: `labelling._sample_grid`
+    (reach_px is capped at its cell width); ridge (P,): `labelling._ridge_brightness`. Contradictions are found on the
     labels as they are on entry, then all cuts applied. Returns the number of samples that lost their label.
     """
     if len(sid) == 0:
@@ -446,7 +454,7 @@ def cut_facing_ends(q, fam, sid, piece, tangent, index, seed_jid, q_junction, gr
     use_ridge = ridge is not None and len(ridge) == len(q)
     qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
     x0, y0, cell, gw, gh, _, items, pos_of = grid
-    start, cand, rec, one = _facing_candidates(sid, piece, index, q, fam, items, pos_of, x0, y0, cell, gw, gh)
+    start, cand, rec, one = _facing_candidates(sid, piece, index, q, fam, pos_of, x0, y0, cell, gw, gh)
     lo, hi = _facing_cuts(q, fam, sid, piece, tangent, index, seed_jid, qj,
                           ridge if use_ridge else np.zeros(0, np.float32), use_ridge, float(min(reach_px, cell)),
                           float(lateral_px), x0, y0, cell, gw, gh, start, cand, rec, one, pos_of)
