@@ -29,7 +29,7 @@ from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import epipolar_lines, paper_epipolar_mb
 from reconstruction.rigmodel import UNLABELLED, RigModel
-from reconstruction.trace_ends import cut_far_ends
+from reconstruction.trace_ends import cut_facing_ends, cut_far_ends
 
 
 @dataclass(frozen=True)
@@ -897,6 +897,11 @@ def label_samples(
                                                         options.cross_radius * model.junction_step_cam_px,
                                                         options.cross_residual_px, grid, UNLABELLED, options.cross_min_samples,
                                                         options.seed_lateral_px * cell, ridge)
+            # a labelled end running into a collinear line of its family with another index (0084, round 4b)
+            stats["samples_facing_cut"] = cut_facing_ends(q, fam, sid, piece, tangent, index, seed_jid, obs.q_junction, grid,
+                                                          reach_px=cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
+                                                                                          min_angle_deg=options.continue_gap_deg or 45.0),
+                                                          lateral_px=options.seed_lateral_px * cell, ridge=ridge)
         if (options.cross_pieces or options.continue_lines) and model is not None:
             got = np.isfinite(index[sid])
         stats["samples_unseeded"] = int((~got).sum())

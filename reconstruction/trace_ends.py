@@ -15,6 +15,11 @@ line m are on one surface (the check of decision 0052, `RigModel.sheet_check`). 
 k' ≠ k within `cross_residual_px`, inside the depth range, the stretch of the piece between its outermost
 seed and that end is not on line k's surface all the way: its samples lose the label (the seeded stretch
 and the other side keep it; the stretch is not relabelled k': the edge lies somewhere inside it).
+
+Round 4b (`cut_facing_ends`): a labelled piece's end that runs, across a gap no longer than a crossing's, into
+the nearest labelled sample of its own family on its tangent carrying another index is at a depth edge too (a
+line cannot continue into another line of its family on one surface); the edge is put at the largest
+ridge-brightness step between the two labels' junctions.
 """
 
 from __future__ import annotations
@@ -214,3 +219,250 @@ def cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, dept
         return 0
     use_ridge = ridge is not None and len(ridge) == len(q)
     return int(unlabel_stretches(cut, lo, hi, sign, beyond, sid, ridge if use_ridge else np.zeros(0, np.float32), use_ridge, index, seed_jid))
+
+
+DIP_SAMPLES = 2  # samples next to an occluding edge whose line profile it cuts (about a line width)
+
+
+@njit
+def _stretch_start(a, b, end, q, sid, q_junction, j):
+    """The trace position in a..b nearest junction j (camera px), or the piece's other end when j < 0."""
+    u0 = b if end == a else a
+    if j >= 0:
+        dmin = np.inf
+        for u in range(a, b + 1):
+            d = math.hypot(q[sid[u], 0] - q_junction[j, 0], q[sid[u], 1] - q_junction[j, 1])
+            if d < dmin:
+                dmin = d
+                u0 = u
+    return u0
+
+
+@njit
+def _facing_candidates(sid, piece, index, q, fam, pos_of, x0, y0, cell, gw, gh):
+    """The samples an end can face, bucketed on the crossing grid's cells: the labelled ends of trace pieces and
+    the labelled samples on no trace (a junction's snapped seeds in the mixing zone). (start, items) as the
+    grid's (a third of its samples), and each one's record (x, y, family, index) in the same order (read
+    contiguously by the search)."""
+    n = sid.shape[0]
+    cand = np.empty(2 * n + pos_of.shape[0], np.intp)
+    m = 0
+    for u in range(n):
+        if (u == 0 or piece[u - 1] != piece[u] or u == n - 1 or piece[u + 1] != piece[u]) and math.isfinite(index[sid[u]]):
+            cand[m] = sid[u]
+            m += 1
+    for s in range(pos_of.shape[0]):  # samples on no trace (invalid ones carry no index)
+        if pos_of[s] < 0 and math.isfinite(index[s]):
+            cand[m] = s
+            m += 1
+    nc = gw * gh
+    cnt = np.zeros(nc + 1, np.intp)
+    cid = np.empty(m, np.intp)
+    for i in range(m):
+        s = cand[i]
+        xx = min(max(int(math.floor((q[s, 0] - x0) / cell)), 0), gw - 1)
+        yy = min(max(int(math.floor((q[s, 1] - y0) / cell)), 0), gh - 1)
+        cid[i] = yy * gw + xx
+        cnt[cid[i] + 1] += 1
+    for b in range(nc):
+        cnt[b + 1] += cnt[b]
+    out = np.empty(m, np.intp)
+    rec = np.empty((m, 4))
+    # per cell and family: the one index its candidates carry, −1 none, −2 several (the search skips an end
+    # whose cells hold only its own index)
+    one = np.full((nc, 2), -1, np.int32)
+    fill = cnt[:nc].copy()
+    for i in range(m):
+        b = cid[i]
+        j = fill[b]
+        s = cand[i]
+        out[j] = s
+        rec[j, 0] = q[s, 0]
+        rec[j, 1] = q[s, 1]
+        rec[j, 2] = fam[s]
+        rec[j, 3] = index[s]
+        fill[b] += 1
+        f = fam[s] - 1
+        v = int(index[s])
+        if one[b, f] == -1:
+            one[b, f] = v
+        elif one[b, f] != v:
+            one[b, f] = -2
+    return cnt, out, rec, one
+
+
+@njit
+def _run(u, sid, piece, index):
+    """The trace positions (lo, hi) of the run of position u: its piece's consecutive samples with u's index."""
+    n = sid.shape[0]
+    v = index[sid[u]]
+    lo = u
+    while lo > 0 and piece[lo - 1] == piece[u] and index[sid[lo - 1]] == v:
+        lo -= 1
+    hi = u
+    while hi + 1 < n and piece[hi + 1] == piece[u] and index[sid[hi + 1]] == v:
+        hi += 1
+    return lo, hi
+
+
+@njit
+def _edge_cut(pe, step, best, q, sid, piece, index, seed_jid, q_junction, ridge, use_ridge, pos_of):
+    """Where the run ending at trace position pe (step +1: it ends at its last sample, −1 at its first) loses
+    its label, given the facing sample best of another index: the trace position the cut starts from (the cut
+    runs from there to pe), or −1 for none. `cut_facing_ends` explains the rule."""
+    ra, rb = _run(pe, sid, piece, index)
+    u0 = _stretch_start(ra, rb, pe, q, sid, q_junction, seed_jid[sid[pe]])
+    m = (pe - u0) * step
+    if m < 1:
+        return -1
+    if not use_ridge:
+        return u0 + step
+    # ridge steps along u0 .. end, across to the facing sample, and on along the facing run to its sample
+    # nearest its junction: the largest one is the edge; on this run only if before the gap
+    top = -1.0
+    at = -1
+    for i in range(m):
+        d = abs(ridge[sid[u0 + (i + 1) * step]] - ridge[sid[u0 + i * step]])
+        if d > top:
+            top = d
+            at = i
+    across = abs(ridge[best] - ridge[sid[pe]])
+    far = 0.0
+    pf = pos_of[best]
+    if pf >= 0:
+        fa, fb = _run(pf, sid, piece, index)
+        f0 = _stretch_start(fa, fb, pf, q, sid, q_junction, seed_jid[best])
+        fs = 1 if f0 > pf else -1
+        u = pf
+        while u != f0:
+            far = max(far, abs(ridge[sid[u + fs]] - ridge[sid[u]]))
+            u += fs
+    if across >= top or far > top:
+        return -1  # the edge is at the gap or on the facing run: nothing on this one
+    i0 = at + 1
+    r_hi = ridge[sid[u0 + i0 * step]]
+    if r_hi > ridge[sid[u0 + at * step]]:
+        # rising towards the end: if the samples before the step are a short dip (brighter again before it),
+        # they are the ones next to the edge whose line profile it cuts: the edge is among them, they go too
+        i = at
+        while i >= 1 and at - i < DIP_SAMPLES and ridge[sid[u0 + i * step]] < r_hi - 0.5 * top:
+            i -= 1
+        if ridge[sid[u0 + i * step]] >= r_hi - 0.5 * top:
+            i0 = i + 1
+    return u0 + i0 * step
+
+
+@njit
+def _facing_cuts(q, fam, sid, piece, tangent, index, seed_jid, q_junction, ridge, use_ridge, reach, lateral_px,
+                 x0, y0, cell, gw, gh, start, items, rec, one, pos_of):
+    """`cut_facing_ends`' loop (its doc). Returns the trace positions (lo, hi) of the stretches to unlabel."""
+    n = sid.shape[0]
+    lo_out = np.empty(2 * n, np.intp)
+    hi_out = np.empty(2 * n, np.intp)
+    c = 0
+    a = 0
+    while a < n:
+        p = piece[a]
+        b = a
+        while b + 1 < n and piece[b + 1] == p:
+            b += 1
+        # the piece's ends: the nearest labelled sample of the family ahead, off the piece
+        for side in range(2):
+            pe = a if side == 0 else b
+            step = -1 if side == 0 else 1  # towards the end
+            se = sid[pe]
+            k = index[se]
+            if not math.isfinite(k):
+                continue
+            dx = step * tangent[pe, 0]
+            dy = step * tangent[pe, 1]
+            ex = q[se, 0]
+            ey = q[se, 1]
+            fe = float(fam[se])
+            # the cells under the box of the segment e .. e + reach·d (widened by lateral_px); skipped when
+            # they hold no candidate of this family with another index
+            bx0 = min(ex, ex + reach * dx) - lateral_px
+            bx1 = max(ex, ex + reach * dx) + lateral_px
+            by0 = min(ey, ey + reach * dy) - lateral_px
+            by1 = max(ey, ey + reach * dy) + lateral_px
+            ya = max(int(math.floor((by0 - y0) / cell)), 0)
+            yb = min(int(math.floor((by1 - y0) / cell)) + 1, gh)
+            xa = max(int(math.floor((bx0 - x0) / cell)), 0)
+            xb = min(int(math.floor((bx1 - x0) / cell)) + 1, gw)
+            other = False
+            fi = fam[se] - 1
+            for yy in range(ya, yb):
+                for xx in range(xa, xb):
+                    v = one[yy * gw + xx, fi]
+                    if v != -1 and v != k:
+                        other = True
+            if not other:
+                continue
+            best = -1
+            best_a = np.inf
+            for yy in range(ya, yb):
+                for xx in range(xa, xb):
+                    bb = yy * gw + xx
+                    for t in range(start[bb], start[bb + 1]):
+                        if rec[t, 2] != fe:
+                            continue
+                        wx = rec[t, 0] - ex
+                        wy = rec[t, 1] - ey
+                        al = wx * dx + wy * dy
+                        if al > 0.5 and al <= reach and al < best_a and abs(wx * dy - wy * dx) <= lateral_px:
+                            s = items[t]
+                            ps = pos_of[s]
+                            if ps >= 0 and piece[ps] == p:
+                                continue
+                            best_a = al
+                            best = s
+            if best < 0 or index[best] == k:
+                continue
+            cf = _edge_cut(pe, step, best, q, sid, piece, index, seed_jid, q_junction, ridge, use_ridge, pos_of)
+            if cf >= 0:
+                lo_out[c] = min(cf, pe)
+                hi_out[c] = max(cf, pe)
+                c += 1
+        a = b + 1
+    return lo_out[:c], hi_out[:c]
+
+def cut_facing_ends(q, fam, sid, piece, tangent, index, seed_jid, q_junction, grid: tuple, *, reach_px: float,
+                    lateral_px: float, ridge: np.ndarray | None = None) -> int:
+    """Take the label off a labelled piece's end that runs into a collinear labelled line of its own family
+    with another index (decision 0084, round 4b).
+
+    A line of the pattern cannot continue into another line of the same family on one continuous surface:
+    where a piece labelled k ends and, within reach_px ahead on its end's tangent (within lateral_px across
+    it), the nearest labelled sample of its family (another piece, or a junction's snapped seed) carries
+    k' ≠ k, a depth edge lies between the two labels' junctions. It is put at the largest ridge-brightness
+    step along the stretch from the piece's sample nearest its junction (seed_jid) to the end, across the gap,
+    and on along the facing run to its sample nearest its own junction. If that step is on this piece, the
+    samples from it to the end lose their label; if it rises towards the end and the samples before it are a
+    dip of at most DIP_SAMPLES (below the step's midpoint, brighter again before it: the samples on both sides
+    of an occluding edge have their line profile cut by it), the dip goes too. If it is the gap's step or on
+    the facing run, nothing on this piece is cut (the facing piece's own check decides for it). Without a
+    ridge the whole stretch but its first sample goes. The stretch is not relabelled. Ends inside a piece
+    (seeds that disagree, split by `spread_seeds`) are not checked (decision 0084, round 4b).
+
+    q (P, 2) camera px; fam (P,); sid, piece, tangent: the traces (positions in order); index (P,) float and
+    seed_jid (P,), modified in place (NaN, −1); q_junction (M, 2) camera px; grid: `labelling._sample_grid`
+    (reach_px is capped at its cell width); ridge (P,): `labelling._ridge_brightness`. Contradictions are found on the
+    labels as they are on entry, then all cuts applied. Returns the number of samples that lost their label.
+    """
+    if len(sid) == 0:
+        return 0
+    use_ridge = ridge is not None and len(ridge) == len(q)
+    qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
+    x0, y0, cell, gw, gh, _, items, pos_of = grid
+    start, cand, rec, one = _facing_candidates(sid, piece, index, q, fam, pos_of, x0, y0, cell, gw, gh)
+    lo, hi = _facing_cuts(q, fam, sid, piece, tangent, index, seed_jid, qj,
+                          ridge if use_ridge else np.zeros(0, np.float32), use_ridge, float(min(reach_px, cell)),
+                          float(lateral_px), x0, y0, cell, gw, gh, start, cand, rec, one, pos_of)
+    m = 0
+    for a, b in zip(lo, hi):
+        s = sid[a:b + 1]
+        f = np.isfinite(index[s])
+        m += int(f.sum())
+        index[s] = np.nan
+        seed_jid[s] = -1
+    return m
