@@ -194,6 +194,54 @@ def _union_find_root(parent, a):
 
 
 @njit
+def _component_order(comp, t, n, ncomp):
+    """Positions 0..n−1 ordered by component (counting sort), then along it: a stable sort by t, i.e. by
+    (t, position). The samples come in raster order, so a component is nearly sorted one way or the other:
+    reversed when it runs backwards, then an insertion sort on (t, position) (the same order as a stable
+    mergesort, without allocations); a component that needs many moves falls back to the mergesort.
+    Returns order (n,) and start (ncomp + 1,), the components' first positions in order (used by `traces`
+    and `traces_from_segments`, once per call)."""
+    start = np.zeros(ncomp + 1, np.int64)
+    for i in range(n):
+        start[comp[i] + 1] += 1
+    for k in range(ncomp):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.intp)
+    for i in range(n):
+        order[fill[comp[i]]] = i
+        fill[comp[i]] += 1
+    for k in range(ncomp):
+        a, b = start[k], start[k + 1]
+        if b - a < 2:
+            continue
+        if t[order[b - 1]] < t[order[a]]:
+            for m in range((b - a) // 2):
+                v = order[a + m]
+                order[a + m] = order[b - 1 - m]
+                order[b - 1 - m] = v
+        budget = 8 * (b - a) + 64
+        moves = 0
+        for m in range(a + 1, b):
+            v = order[m]
+            tv = t[v]
+            j = m - 1
+            while j >= a and (t[order[j]] > tv or (t[order[j]] == tv and order[j] > v)):
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = v
+            moves += m - 1 - j
+            if moves > budget:
+                break
+        if moves > budget:
+            seg = np.sort(order[a:b])  # ids in increasing order, then a stable sort by t
+            srt = np.argsort(t[seg], kind="mergesort")
+            for m in range(b - a):
+                order[a + m] = seg[srt[m]]
+    return order, start
+
+
+@njit
 def traces(q, fam, r, c, H, W, link_px, lateral_px, cos_turn, w, ridge, ridge_step, use_ridge):
     """The trace pieces of label_samples (step 3): link same-family samples in neighbouring pixels (within link_px), take connected
     components (numbered by their lowest sample id, as scipy's connected_components), order each along its
@@ -303,47 +351,8 @@ def traces(q, fam, r, c, H, W, link_px, lateral_px, cos_turn, w, ridge, ridge_st
     t = np.empty(n)
     for i in range(n):
         t[i] = (q[i, 0] - mx[comp[i]]) * cth[comp[i]] + (q[i, 1] - my[comp[i]]) * sth[comp[i]]
-    # Order: by component (counting sort), then along the axis: a stable sort by t, i.e. by (t, sample id).
-    # The samples come in raster order, so a component is nearly sorted one way or the other: reversed
-    # when it runs backwards, then an insertion sort on (t, id) (the same order as the former stable
-    # mergesort, without allocations); a component that needs many moves falls back to the mergesort.
-    start = np.zeros(ncomp + 1, np.int64)
-    for i in range(n):
-        start[comp[i] + 1] += 1
-    for k in range(ncomp):
-        start[k + 1] += start[k]
-    fill = start[:-1].copy()
-    order = np.empty(n, np.intp)
-    for i in range(n):
-        order[fill[comp[i]]] = i
-        fill[comp[i]] += 1
-    for k in range(ncomp):
-        a, b = start[k], start[k + 1]
-        if b - a < 2:
-            continue
-        if t[order[b - 1]] < t[order[a]]:
-            for m in range((b - a) // 2):
-                v = order[a + m]
-                order[a + m] = order[b - 1 - m]
-                order[b - 1 - m] = v
-        budget = 8 * (b - a) + 64
-        moves = 0
-        for m in range(a + 1, b):
-            v = order[m]
-            tv = t[v]
-            j = m - 1
-            while j >= a and (t[order[j]] > tv or (t[order[j]] == tv and order[j] > v)):
-                order[j + 1] = order[j]
-                j -= 1
-            order[j + 1] = v
-            moves += m - 1 - j
-            if moves > budget:
-                break
-        if moves > budget:
-            seg = np.sort(order[a:b])  # ids in increasing order, then a stable sort by t
-            srt = np.argsort(t[seg], kind="mergesort")
-            for m in range(b - a):
-                order[a + m] = seg[srt[m]]
+    # Order: by component, then along the axis (a stable sort by (t, sample id), `_component_order`).
+    order, start = _component_order(comp, t, n, ncomp)
     qs = np.empty((n, 2))
     ts = np.empty(n)
     for k in range(n):
@@ -2065,45 +2074,7 @@ def traces_from_segments(q, fam, seg, cen, dr, sel, link_px, lateral_px, cos_tur
             k = jk[m]
             c = comp[k]
             t[k] = (q[sel[k], 0] - sx[c]) * cth[c] + (q[sel[k], 1] - sy[c]) * sth[c]
-    start = np.zeros(ncomp + 1, np.int64)
-    for k in range(n):
-        start[comp[k] + 1] += 1
-    for k in range(ncomp):
-        start[k + 1] += start[k]
-    fill = start[:-1].copy()
-    order = np.empty(n, np.intp)
-    for k in range(n):
-        order[fill[comp[k]]] = k
-        fill[comp[k]] += 1
-    # along the segment: raster order is nearly sorted one way or the other (reverse, then insertion sort
-    # on (t, id); many moves fall back to a stable mergesort), as in `traces`
-    for k in range(ncomp):
-        a, b = start[k], start[k + 1]
-        if b - a < 2:
-            continue
-        if t[order[b - 1]] < t[order[a]]:
-            for m in range((b - a) // 2):
-                v = order[a + m]
-                order[a + m] = order[b - 1 - m]
-                order[b - 1 - m] = v
-        budget = 8 * (b - a) + 64
-        moves = 0
-        for m in range(a + 1, b):
-            v = order[m]
-            tv = t[v]
-            j = m - 1
-            while j >= a and (t[order[j]] > tv or (t[order[j]] == tv and order[j] > v)):
-                order[j + 1] = order[j]
-                j -= 1
-            order[j + 1] = v
-            moves += m - 1 - j
-            if moves > budget:
-                break
-        if moves > budget:
-            sg = np.sort(order[a:b])
-            srt = np.argsort(t[sg], kind="mergesort")
-            for m in range(b - a):
-                order[a + m] = sg[srt[m]]
+    order, start = _component_order(comp, t, n, ncomp)
     qs = np.empty((n, 2))
     ts = np.empty(n)
     for k in range(n):
