@@ -61,6 +61,24 @@ def _arm_positions(sidx, arm_of, retry):
 
 
 @njit
+def _split_near(near, pos, sidx, n_kept, n_dropped):
+    """The sample ids sidx[pos[p]] with near[p] == 1 (kept, n_kept of them) and == 2 (dropped, n_dropped),
+    in position order; near[p] == 0: neither."""
+    kept = np.empty(n_kept, np.int64)
+    dropped = np.empty(n_dropped, np.int64)
+    n = 0
+    m = 0
+    for p in range(len(pos)):
+        if near[p] == 1:
+            kept[n] = sidx[pos[p]]
+            n += 1
+        elif near[p] == 2:
+            dropped[m] = sidx[pos[p]]
+            m += 1
+    return kept, dropped
+
+
+@njit
 def _trimmed_arm_samples(sidx, sg, sproj, smin, smax, seg_seed, arm_of, retry, d_trim, pos):
     """The arm samples of the candidates flagged in `retry` (at positions pos in sidx, `_arm_positions`):
     those farther than d_trim (px along the segment) from every free end of their segment (kept), and the
@@ -89,18 +107,7 @@ def _trimmed_arm_samples(sidx, sg, sproj, smin, smax, seg_seed, arm_of, retry, d
         else:
             near[p] = 1
             n += 1
-    kept = np.empty(n, np.int64)
-    dropped = np.empty(m, np.int64)
-    n = 0
-    m = 0
-    for p in range(len(pos)):
-        if near[p] == 1:
-            kept[n] = sidx[pos[p]]
-            n += 1
-        else:
-            dropped[m] = sidx[pos[p]]
-            m += 1
-    return kept[:n], dropped[:m]
+    return _split_near(near, pos, sidx, n, m)
 
 
 @njit
@@ -128,18 +135,7 @@ def _short_arm_samples(sidx, sg, sproj, smin, smax, seg_seed, arm_of, retry, d_t
         else:
             near[p] = 1
             n += 1
-    kept = np.empty(n, np.int64)
-    dropped = np.empty(m, np.int64)
-    n = 0
-    m = 0
-    for p in range(len(pos)):
-        if near[p] == 1:
-            kept[n] = sidx[pos[p]]
-            n += 1
-        elif near[p] == 2:
-            dropped[m] = sidx[pos[p]]
-            m += 1
-    return kept[:n], dropped[:m]
+    return _split_near(near, pos, sidx, n, m)
 
 
 @njit
