@@ -2244,3 +2244,61 @@ def join_group_ends(q, fam, sel, e_lo, e_hi, ng, link_px):
                         else:
                             parent[ra] = rb
     return parent
+
+
+# --- glue round five (decision 0087): label_samples' per-sample NumPy steps in one pass each ---------------
+
+
+@njit
+def kept_samples(valid, near_other, seed, unlabelled):
+    """label_samples after the seeds: the samples outside the mixing zone, k_idx (K,) intp in increasing
+    order (= np.flatnonzero(valid & ~near_other)), the number of valid samples in the mixing zone and the
+    number of kept samples that are seeds (seed != unlabelled). One pass over the samples."""
+    P = valid.shape[0]
+    out = np.empty(P, np.intp)
+    m = 0
+    n_mix = 0
+    n_seeds = 0
+    for s in range(P):
+        if not valid[s]:
+            continue
+        if near_other[s]:
+            n_mix += 1
+            continue
+        out[m] = s
+        m += 1
+        if seed[s] != unlabelled:
+            n_seeds += 1
+    return out[:m], n_mix, n_seeds
+
+
+@njit
+def labelled_positions(index, sid):
+    """The trace positions whose sample carries an index, (g,) intp increasing (= np.flatnonzero(np.isfinite(
+    index[sid]))), and the number of positions without one."""
+    n = sid.shape[0]
+    out = np.empty(n, np.intp)
+    m = 0
+    for k in range(n):
+        if math.isfinite(index[sid[k]]):
+            out[m] = k
+            m += 1
+    return out[:m], n - m
+
+
+@njit
+def newly_labelled(index, seen, have_seen):
+    """A crossing round's start: labelled (P,) bool = np.isfinite(index), and when have_seen the samples
+    labelled since `seen` (P,) bool was taken, (N,) intp increasing (= np.flatnonzero(labelled & ~seen));
+    else an empty list."""
+    P = index.shape[0]
+    lab = np.empty(P, np.bool_)
+    out = np.empty(P if have_seen else 0, np.intp)
+    m = 0
+    for s in range(P):
+        f = math.isfinite(index[s])
+        lab[s] = f
+        if have_seen and f and not seen[s]:
+            out[m] = s
+            m += 1
+    return lab, out[:m]

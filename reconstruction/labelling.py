@@ -19,6 +19,7 @@ Derivations and the ambiguity test: docs/reconstruction.md.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -612,6 +613,17 @@ def _nearest_within(q: np.ndarray, pts: np.ndarray, radius: float) -> tuple[np.n
                                    np.ascontiguousarray(pts, np.float64).reshape(-1, 2), float(radius))
 
 
+@lru_cache(maxsize=8)
+def _disk_offsets(rad: int) -> tuple[np.ndarray, np.ndarray]:
+    """The (row, column) offsets (intp) of the pixels of cv2's elliptic structuring element of radius rad (the
+    mixing zone's disk), in np.nonzero's order; cached (decision 0087)."""
+    dr, dc = np.nonzero(cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rad + 1, 2 * rad + 1)))
+    return (dr - rad).astype(np.intp), (dc - rad).astype(np.intp)
+
+
+_SIN_20 = float(np.sin(np.deg2rad(20)))  # the crossing searches' smallest crossing angle
+
+
 def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model: RigModel, depth_range_mm,
                     radius_px: float, trim_px: float, options: TraceOptions, grid: tuple | None = None,
                     rounds: int | None = None, state: dict | None = None) -> int:
@@ -633,7 +645,8 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
     if grid is None:
         grid = _sample_grid(q, (fam == 1) | (fam == 2), sid, radius_px)
     total = 0
-    sin_min = float(np.sin(np.deg2rad(20)))
+    labelled_none = np.zeros(0, np.bool_)
+    sin_min = _SIN_20
     # Each piece end's nearest labelled sample of the other family, its crossing's line and junction, kept
     # from round to round ([side·n_pieces + piece]), and which samples were labelled when they were found:
     # labels are only added (here, by the continuation, by nothing else in between), so later an end's
@@ -646,14 +659,14 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
         st.update(bd=np.full(2 * n_pieces, np.inf), bk=np.full(2 * n_pieces, -1, np.intp),
                   k_end=np.full(2 * n_pieces, UNLABELLED, np.int64), jid_end=np.full(2 * n_pieces, -1, np.int64), seen=None)
     for _ in range(options.cross_rounds if rounds is None else rounds):
-        labelled_now = np.isfinite(index)
+        # which samples carry an index now, and those labelled since the search before (decision 0087)
+        labelled_now, new_s = _k.newly_labelled(index, st["seen"] if st["seen"] is not None else labelled_none, st["seen"] is not None)
         if st["seen"] is None:
             todo, e, te, sign, fe, first, last = _k.cross_round_ends(q, sid, piece, tangent, fam, index, n_pieces,
                                                                     int(options.cross_min_samples))
             st["first"], st["last"] = first, last
         else:
             # the pieces to do: those of the search before without a sample labelled since
-            new_s = np.flatnonzero(labelled_now & ~st["seen"])
             first, last = st["first"], st["last"]
             todo, e, te, sign, fe = _k.cross_round_ends_after(st["todo"], new_s, grid[7], piece, first, last, q, sid, tangent, fam)
         nt = len(todo)
@@ -820,8 +833,7 @@ def label_samples(
     W = int(W)
     # 1. The mixing zone: within mix_sigma·σ of a sample of the other family (a disk on the pixel grid).
     rad = max(1, int(round(options.mix_sigma * sigma_px / cell)))
-    dr, dc = np.nonzero(cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rad + 1, 2 * rad + 1)))
-    near_other = _k.mixing_zone(r, c, fam, valid, H, W, (dr - rad).astype(np.intp), (dc - rad).astype(np.intp))
+    near_other = _k.mixing_zone(r, c, fam, valid, H, W, *_disk_offsets(rad))
     # 2. Seeds: samples near a labelled junction, on its fitted line of their family.
     lab = np.asarray(junction_labels, np.int64).reshape(-1, 2)
     labelled = np.flatnonzero(lab[:, 0] != UNLABELLED)
@@ -833,15 +845,15 @@ def label_samples(
                                    bool(options.snap_mixing), UNLABELLED, seed, seed_jid, q_out, index)
         if options.snap_mixing:
             stats["snapped_to_junction_line"] = int(n_snap)
-    kept = valid & ~near_other
-    stats["mixing_zone"] = int((valid & near_other).sum()) - stats["snapped_to_junction_line"]
-    stats["seeds"] = int(np.count_nonzero((seed != UNLABELLED) & kept))
+    # the kept samples (outside the mixing zone) and the two counts, in one pass (decision 0087)
+    k_idx, n_mix, n_seeds = _k.kept_samples(valid, near_other, seed, UNLABELLED)
+    stats["mixing_zone"] = int(n_mix) - stats["snapped_to_junction_line"]
+    stats["seeds"] = int(n_seeds)
     # 3. Trace pieces and the nearest seed along each.
     ridge = None
     blurred = _box3(image) if image is not None else None
     if image is not None and options.max_ridge_step > 0:
         ridge = _ridge_brightness(blurred, q)
-    k_idx = np.flatnonzero(kept)
     if len(k_idx):
         use_ridge = ridge is not None and options.max_ridge_step > 0
         seg_linked = getattr(obs, "segment_linked", None)
@@ -903,11 +915,13 @@ def label_samples(
                                                                                           min_angle_deg=options.continue_gap_deg or 45.0),
                                                           lateral_px=options.seed_lateral_px * cell, ridge=ridge)
         if (options.cross_pieces or options.continue_lines) and model is not None:
-            got = np.isfinite(index[sid])
-        stats["samples_unseeded"] = int((~got).sum())
+            g, n_unseeded = _k.labelled_positions(index, sid)  # (decision 0087)
+        else:
+            g = np.flatnonzero(got)
+            n_unseeded = len(got) - len(g)
+        stats["samples_unseeded"] = int(n_unseeded)
         cut_samples = np.zeros(0, np.intp)
         if image is not None and line_width_px and options.max_profile_drop > 0:
-            g = np.flatnonzero(got)
             cut = _profile_drop_traces(blurred, q, sid, tangent, g, float(line_width_px), ridge) > options.max_profile_drop
             cut_samples = sid[g[cut]]
             index[cut_samples] = np.nan
