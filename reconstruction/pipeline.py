@@ -120,13 +120,44 @@ def reconstruct(
     """Decode one camera image of `pattern` into points and a camera-frame range map (module doc).
 
     A frame without a usable grid gives an empty result with a warning; inconsistent inputs raise
-    ReconstructionError (`check_inputs`).
+    ReconstructionError (`check_inputs`). The same as `finish_frame(extract_frame(...))`.
     """
+    return finish_frame(extract_frame(image, procam, pattern, options=options))
+
+
+@dataclass(frozen=True, eq=False)
+class ExtractedFrame:
+    """A frame after the extraction stage (`extract_frame`), ready for `finish_frame`: the image, the grid
+    observation, the rig model and the options, and the stage's times (ms: "model", "extract")."""
+
+    image: np.ndarray
+    obs: GridObservation
+    model: RigModel
+    options: ReconstructOptions
+    ms: dict
+
+
+def extract_frame(
+    image: np.ndarray, procam: ProCam, pattern: GridPattern, *, options: ReconstructOptions = ReconstructOptions()
+) -> ExtractedFrame:
+    """The first stage of `reconstruct`: check the inputs, then grid extraction.
+
+    Split from `finish_frame` so that a stream of frames can run the two stages on two threads at once (the
+    scan loop does, rig/overlap.py; decision 0088): each stage's kernels release the GIL. The image must
+    not be modified until `finish_frame` has returned (the label stage reads it again)."""
     check_inputs(image, procam, pattern)
     t0 = time.perf_counter()
     model = rig_model(procam, pattern, (float(options.depth_min_mm), float(options.depth_max_mm)))
     t_model = time.perf_counter()
     obs = extract_grid(image, model, options=options.extract)
+    t_extract = time.perf_counter()
+    return ExtractedFrame(image, obs, model, options, {"model": 1e3 * (t_model - t0), "extract": 1e3 * (t_extract - t_model)})
+
+
+def finish_frame(frame: ExtractedFrame) -> Reconstruction:
+    """The second stage of `reconstruct`: labelling (junctions, then line samples) and triangulation.
+    stats["ms"] holds every stage's time, "total" their sum."""
+    image, obs, model, options = frame.image, frame.obs, frame.model, frame.options
     t_extract = time.perf_counter()
     xy_cam_j = model.cam_normalised(obs.q_junction)
     if options.labeller == "paper":
@@ -146,14 +177,11 @@ def reconstruct(
     t_label = time.perf_counter()
     result = _triangulate(image, obs, lab, sl, model, xy_cam_j, options)
     t_tri = time.perf_counter()
-    stats = result.stats
-    stats["ms"] = {
-        "model": 1e3 * (t_model - t0),
-        "extract": 1e3 * (t_extract - t_model),
-        "label": 1e3 * (t_label - t_extract),
-        "triangulate": 1e3 * (t_tri - t_label),
-        "total": 1e3 * (t_tri - t0),
-    }
+    ms = dict(frame.ms)
+    ms["label"] = 1e3 * (t_label - t_extract)
+    ms["triangulate"] = 1e3 * (t_tri - t_label)
+    ms["total"] = ms["model"] + ms["extract"] + ms["label"] + ms["triangulate"]
+    result.stats["ms"] = ms
     return result
 
 

@@ -1,8 +1,11 @@
-"""The acquisition loop: show/trigger → acknowledgement → settle → grab → verify → write raw → process → log.
+"""The acquisition loop: show/trigger → acknowledgement → settle → grab → verify → write raw → log raw → reconstruct.
 
-Orchestration only; every device call goes through the protocols in drivers.base. Memory stays constant over any
-number of frames (nothing is kept after a frame is logged). Ctrl-C stops cleanly: the frames captured so far stay on
-disk and the recording is closed properly.
+Orchestration only; every device call goes through the protocols in drivers.base. The reconstruction of a scan
+runs beside the capture of the next ones (rig/overlap.py: its two stages on two threads, in scan order; decision
+0088), so the loop waits for it only when both stages are busy and two scans are queued. Memory stays constant
+over any number of frames (at most a few scans in flight; nothing is kept after a scan is logged). Ctrl-C stops
+cleanly: the frames captured so far stay on disk, the scans already captured are reconstructed, and the recording
+is closed properly.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import numpy as np
 from calibration.errors import DeviceError, RigError
 from calibration.file import CalibrationFile, dumps_calibration, write_text_atomic
 from rig.config import RigConfig, config_to_toml
+from rig.overlap import StagePipeline
 
 
 @dataclass(frozen=True)
@@ -31,6 +35,7 @@ class ScanRequest:
     depth: Path | None = None
     reconstruct: bool = True
     pattern: str = "grid"
+    overlap: bool = True  # reconstruct beside the capture (False: after each scan, on the calling thread)
 
 
 @dataclass
@@ -46,6 +51,8 @@ class ScanSummary:
     reconstructed: bool = False
     warnings: list[str] = field(default_factory=list)
     calibration_source: str = ""
+    capture_waits: int = 0  # scans whose capture waited for the reconstruction to make room
+    capture_wait_s: float = 0.0
 
 
 def _numbered(path: Path | None, index: int, total: int) -> Path | None:
@@ -87,14 +94,20 @@ class ScanMode:
     """What one scan projects and how its frames become a reconstruction.
 
     patterns: the projector images (pattern ids are their positions); sequence: the pattern ids shown, in
-    order, for one scan (one frame each); process(images, request, n) -> dict (points, warnings, ms), or None
-    when the scan only captures.
+    order, for one scan (one frame each). The reconstruction in two stages (rig/overlap.py runs them on two
+    threads): prepare(images) -> state, finish(state) -> result with points_proj, depth_cam, stats, warnings
+    (a reconstruction.pipeline.Reconstruction); both None when the scan only captures.
     """
 
     name: str
     patterns: list
     sequence: list[int]
-    process: Callable | None
+    prepare: Callable | None
+    finish: Callable | None
+
+    @property
+    def reconstructs(self) -> bool:
+        return self.finish is not None
 
 
 def scan_mode(cfg: RigConfig, procam, *, pattern: str, reconstruct: bool) -> ScanMode:
@@ -106,13 +119,13 @@ def scan_mode(cfg: RigConfig, procam, *, pattern: str, reconstruct: bool) -> Sca
         problem = cfg.pattern.fits(w, h)
         if problem:
             raise ConfigError(f"[pattern]: {problem}")
-        return ScanMode("grid", [cfg.pattern.render(w, h)], [0], _grid_processor(cfg, procam) if reconstruct else None)
+        return ScanMode("grid", [cfg.pattern.render(w, h)], [0], *(_grid_stages(cfg, procam) if reconstruct else (None, None)))
     if pattern == "graycode":
         from reconstruction.graycode_depth import graycode_scan_patterns
 
         patterns = graycode_scan_patterns(w, h)
         return ScanMode(
-            "graycode", patterns, list(range(len(patterns))), _graycode_processor(cfg, procam) if reconstruct else None
+            "graycode", patterns, list(range(len(patterns))), *(_graycode_stages(cfg, procam) if reconstruct else (None, None))
         )
     raise ConfigError(f"--pattern {pattern!r}: expected 'grid' (single shot) or 'graycode' (dense, static scenes)")
 
@@ -166,44 +179,64 @@ def run_scan(
                 capture.write_pattern(k, image)
             write_text_atomic(capture.dir / "calibration.json", dumps_calibration(CalibrationFile.from_procam(procam)))
 
-        summary.reconstructed = mode.process is not None
+        summary.reconstructed = mode.reconstructs
         single = len(mode.sequence) == 1
         rec = stack.enter_context(
             open_recording(request.out, procam=procam, pattern_image=mode.patterns[0] if single else None,
                            report={"calibration": rig.calibration_source, "devices": devices, "mode": mode.name})
         )
+        stages = None
+        if mode.reconstructs:
+            first, second = _scan_stages(mode, rec, request)
+            stages = StagePipeline(first, second) if request.overlap else _InlineStages(first, second)
+            stack.callback(stages.close)  # before the recording closes (ExitStack unwinds in reverse)
+
+        def finished(results: list, *, notify: bool = True) -> None:
+            for n_done, info in results:
+                summary.points_total += info.get("points", 0)
+                summary.warnings.extend(f"scan {n_done}: {w}" for w in info.get("warnings", []))
+                summary.scans_done += 1
+                if notify and on_frame is not None:
+                    on_frame(n_done, info)
+
         settle_s = cfg.camera.settle_ms / 1000.0
         timeout_s = cfg.camera.timeout_ms / 1000.0
         frame_no = 0
         try:
-            for n in range(request.frames):
-                images = []
-                for pattern_id in mode.sequence:
-                    shown = rig.projector.show(pattern_id)
-                    frame = grab_verified(rig.camera, shown, settle_s=settle_s, timeout_s=timeout_s,
-                                          black_grey=8.0 if single else 0.0)
-                    meta = {"device_time_us": shown.device_time_us, "exposure_ms": cfg.camera.exposure_ms}
-                    # Raw data first: on disk (and in the recording) before anything can fail on it.
-                    if capture is not None:
-                        capture.write_frame(frame.image, pattern=shown.index, timestamp_s=frame.timestamp_s, **meta)
-                    rec.log_frame(frame_no, frame.image, timestamp_s=frame.timestamp_s)
-                    if not single:
-                        rec.log_pattern(mode.patterns[pattern_id], index=pattern_id)
-                    summary.frames_captured += 1
-                    frame_no += 1
-                    images.append(frame.image)
-                info: dict = {"scan": n, "frame": frame_no - 1}
-                if mode.process is not None:
-                    info.update(mode.process(rec, images, n, request))
-                    summary.points_total += info.get("points", 0)
-                    for w in info.get("warnings", []):
-                        summary.warnings.append(f"scan {n}: {w}")
-                del images
-                summary.scans_done += 1
-                if on_frame is not None:
-                    on_frame(n, info)
-        except KeyboardInterrupt:
-            summary.interrupted = True
+            try:
+                for n in range(request.frames):
+                    images = []
+                    timestamp_s = None
+                    for pattern_id in mode.sequence:
+                        shown = rig.projector.show(pattern_id)
+                        frame = grab_verified(rig.camera, shown, settle_s=settle_s, timeout_s=timeout_s,
+                                              black_grey=8.0 if single else 0.0)
+                        meta = {"device_time_us": shown.device_time_us, "exposure_ms": cfg.camera.exposure_ms}
+                        # Raw data first: on disk (and in the recording) before anything can fail on it.
+                        if capture is not None:
+                            capture.write_frame(frame.image, pattern=shown.index, timestamp_s=frame.timestamp_s, **meta)
+                        rec.log_frame(frame_no, frame.image, timestamp_s=frame.timestamp_s)
+                        if not single:
+                            rec.log_pattern(mode.patterns[pattern_id], index=pattern_id)
+                        summary.frames_captured += 1
+                        timestamp_s = frame.timestamp_s
+                        frame_no += 1
+                        images.append(frame.image)
+                    if stages is None:
+                        finished([(n, {"scan": n, "frame": frame_no - 1})])
+                    else:
+                        finished(stages.submit(_Scan(n, frame_no - 1, timestamp_s, images)))
+                    del images
+            except KeyboardInterrupt:
+                summary.interrupted = True
+            if stages is not None:
+                # the scans already captured are reconstructed before the recording closes; a second Ctrl-C
+                # stops waiting (the raw frames are on disk: `rig reconstruct` can redo them)
+                try:
+                    finished(stages.drain(), notify=not summary.interrupted)
+                except KeyboardInterrupt:
+                    summary.interrupted = True
+                summary.capture_waits, summary.capture_wait_s = stages.waits, stages.wait_s
         except RigError as e:
             summary.error = str(e)
             e.summary = summary  # type: ignore[attr-defined]
@@ -225,8 +258,63 @@ def save_products(result, *, ply: Path | None, depth: Path | None) -> None:
         write_depth_npy(depth, result.depth_cam)
 
 
-def _grid_processor(cfg: RigConfig, procam) -> Callable:
-    from reconstruction.pipeline import ReconstructOptions, reconstruct
+@dataclass
+class _Scan:
+    """One captured scan on its way through the reconstruction: its number, the recording frame (and exposure
+    time) its results are logged at, its images."""
+
+    n: int
+    frame: int
+    timestamp_s: float | None
+    images: list
+
+
+def _scan_stages(mode: ScanMode, rec, request: ScanRequest) -> tuple[Callable, Callable]:
+    """The two stages for rig/overlap.py: the mode's first stage; then its second, the log on the scan's own frame
+    (Rerun's time is per thread) and the requested products. The second returns (n, info) for `on_frame`."""
+    from rig.log_reconstruction import log_reconstruction
+
+    def first(scan: _Scan):
+        t0 = time.perf_counter()
+        state = mode.prepare(scan.images)
+        return scan, state, time.perf_counter() - t0
+
+    def second(item) -> tuple[int, dict]:
+        scan, state, s_first = item
+        t0 = time.perf_counter()
+        result = mode.finish(state)
+        ms = (s_first + time.perf_counter() - t0) * 1000.0
+        rec.set_frame(scan.frame, timestamp_s=scan.timestamp_s)
+        log_reconstruction(rec.stream, result)
+        save_products(result, ply=_numbered(request.ply, scan.n, request.frames), depth=_numbered(request.depth, scan.n, request.frames))
+        info = {"scan": scan.n, "frame": scan.frame, "points": int(len(result.points_proj)), "ms": ms,
+                "warnings": list(result.warnings)}
+        return scan.n, info
+
+    return first, second
+
+
+class _InlineStages:
+    """StagePipeline's interface, both stages on the calling thread at submit (ScanRequest.overlap = False)."""
+
+    waits = 0
+    wait_s = 0.0
+
+    def __init__(self, first: Callable, second: Callable):
+        self._first, self._second = first, second
+
+    def submit(self, item) -> list:
+        return [self._second(self._first(item))]
+
+    def drain(self) -> list:
+        return []
+
+    def close(self) -> None:
+        pass
+
+
+def _grid_stages(cfg: RigConfig, procam) -> tuple[Callable, Callable]:
+    from reconstruction.pipeline import ReconstructOptions, extract_frame, finish_frame
 
     from rig.registry import working_volume
 
@@ -234,29 +322,14 @@ def _grid_processor(cfg: RigConfig, procam) -> Callable:
     options = ReconstructOptions(
         labeller=cfg.reconstruction.labeller, depth_min_mm=depth_min_mm, depth_max_mm=depth_max_mm
     )
-    return _processor(lambda images: reconstruct(images[0], procam, cfg.pattern, options=options))
+    return (lambda images: extract_frame(images[0], procam, cfg.pattern, options=options)), finish_frame
 
 
-def _graycode_processor(cfg: RigConfig, procam) -> Callable:
+def _graycode_stages(cfg: RigConfig, procam) -> tuple[Callable, Callable]:
     from reconstruction.graycode_depth import GrayCodeOptions, reconstruct_graycode
 
     from rig.registry import working_volume
 
     depth_min_mm, depth_max_mm = working_volume(cfg)
     options = GrayCodeOptions(depth_min_mm=depth_min_mm, depth_max_mm=depth_max_mm)
-    return _processor(lambda images: reconstruct_graycode(images, procam, options=options))
-
-
-def _processor(solve: Callable) -> Callable:
-    """Wrap a reconstruction function: time it, log the result, write the requested products."""
-    from rig.log_reconstruction import log_reconstruction
-
-    def run(rec, images: list, n: int, request: ScanRequest) -> dict:
-        t0 = time.perf_counter()
-        result = solve(images)
-        ms = (time.perf_counter() - t0) * 1000.0
-        log_reconstruction(rec.stream, result)
-        save_products(result, ply=_numbered(request.ply, n, request.frames), depth=_numbered(request.depth, n, request.frames))
-        return {"points": int(len(result.points_proj)), "ms": ms, "warnings": list(result.warnings)}
-
-    return run
+    return (lambda images: images), (lambda images: reconstruct_graycode(images, procam, options=options))

@@ -48,11 +48,32 @@ def test_ctrl_c_keeps_what_was_captured(rrd, tmp_path):
             raise KeyboardInterrupt
 
     summary = run_scan(config_from_dict({}), ScanRequest(out=out, frames=10, record=rec), on_frame=interrupt)
-    assert summary.interrupted and summary.frames_captured == 2
-    assert rrd.rows(out, "/world/camera/image") == 2
+    # scan 1's result arrives while later scans are being captured (the reconstruction runs beside the capture):
+    # every scan captured by then is kept and, before the recording closes, reconstructed
+    n = summary.frames_captured
+    assert summary.interrupted and 2 <= n < 10
+    assert summary.scans_done == n
+    assert rrd.rows(out, "/world/camera/image") == n
+    assert rrd.rows(out, "/world/points") == n
+    # each scan's results sit on its own frame (Rerun's time is per thread: the worker sets it)
+    assert sorted(rrd.column(out, "/world/points", "frame")) == list(range(n))
+    assert sorted(rrd.column(out, "/world/camera/depth", "frame")) == list(range(n))
     rrd.verify(out)
     m = json.loads((rec / "manifest.json").read_text())
-    assert m["complete"] is False and len(m["frames"]) == 2
+    assert m["complete"] is False and len(m["frames"]) == n
+
+
+def test_ctrl_c_without_overlap_stops_after_the_scan(rrd, tmp_path):
+    out = tmp_path / "scan.rrd"
+
+    def interrupt(n: int, info: dict) -> None:
+        if n == 1:
+            raise KeyboardInterrupt
+
+    summary = run_scan(config_from_dict({}), ScanRequest(out=out, frames=10, overlap=False), on_frame=interrupt)
+    assert summary.interrupted and summary.frames_captured == 2 and summary.scans_done == 2
+    assert rrd.rows(out, "/world/points") == 2
+    rrd.verify(out)
 
 
 def test_bad_config_is_one_line_and_exit_2(rrd, tmp_path, capsys):
