@@ -1131,3 +1131,71 @@ def drop_duplicates(valid, qj, score):
                     n_dup += 1
         t = e
     return n_dup
+
+
+# --- glue round five (decision 0087) ------------------------------------------------------------------------
+
+
+@njit
+def _grid_cell(x, cell, n):
+    """np.clip(np.rint(x / cell).astype(np.intp), 0, n − 1) for one float64 x (NaN, ±inf and values beyond
+    int64 convert to INT64_MIN there, as NumPy's cast on x86-64 does: cell 0)."""
+    v = np.rint(x / cell)
+    if not (abs(v) < 9.2e18):
+        return 0
+    return min(max(int(v), 0), n - 1)
+
+
+@njit
+def edge_steps(sid, a_j, b_j, fam_s, mid, dq, elen, J_proj_cam, cell_px, n1, n2, M):
+    """The edges' index steps and the kept edges, after `edge_candidates` (one pass each; the NumPy steps
+    they replace: `RigModel.lookup(mid)`'s Jacobian, `einsum("nij,nj->ni", J, dq)` (a0·b0 + a1·b1, no fma,
+    as NumPy computes it), s = sign(dq_proj₁ − n_other·dq_proj₀) as int64 (NaN → INT64_MIN, as the cast),
+    delta (i changes along a j-line, j along an i-line), good = s ≠ 0 and not `edge_skips`).
+    Returns edges (E, 2), edge_family (E,) int8, edge_delta (E, 2), edge_segment (E,), the number of
+    edges with s ≠ 0 that skip a crossing."""
+    n = sid.shape[0]
+    gh = J_proj_cam.shape[0]
+    gw = J_proj_cam.shape[1]
+    s_other = np.empty(n, np.int64)
+    f_ = np.empty(n, np.intp)
+    for e in range(n):
+        c = _grid_cell(mid[e, 0], cell_px, gw)
+        r = _grid_cell(mid[e, 1], cell_px, gh)
+        p0 = J_proj_cam[r, c, 0, 0] * dq[e, 0] + J_proj_cam[r, c, 0, 1] * dq[e, 1]
+        p1 = J_proj_cam[r, c, 1, 0] * dq[e, 0] + J_proj_cam[r, c, 1, 1] * dq[e, 1]
+        no = n2 if fam_s[e] == 1 else n1
+        x = p1 - no * p0
+        if x > 0:
+            s_other[e] = 1
+        elif x < 0:
+            s_other[e] = -1
+        elif x == 0:
+            s_other[e] = 0
+        else:
+            s_other[e] = np.iinfo(np.int64).min
+        f_[e] = np.intp(fam_s[e]) - 1
+    skip = edge_skips(a_j, b_j, f_, elen, M)
+    n_skip = 0
+    m = 0
+    for e in range(n):
+        if s_other[e] != 0:
+            if skip[e]:
+                n_skip += 1
+            else:
+                m += 1
+    edges = np.empty((m, 2), np.int64)
+    efam = np.empty(m, fam_s.dtype)
+    delta = np.empty((m, 2), np.int64)
+    eseg = np.empty(m, sid.dtype)
+    k = 0
+    for e in range(n):
+        if s_other[e] != 0 and not skip[e]:
+            edges[k, 0] = a_j[e]
+            edges[k, 1] = b_j[e]
+            efam[k] = fam_s[e]
+            delta[k, 0] = s_other[e] if fam_s[e] == 2 else 0
+            delta[k, 1] = s_other[e] if fam_s[e] == 1 else 0
+            eseg[k] = sid[e]
+            k += 1
+    return edges, efam, delta, eseg, n_skip

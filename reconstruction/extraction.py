@@ -475,22 +475,16 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         cand, rms_ch, max_ch, tol, 3 * tol + 0.5, segment_ends, seg_family, q_junction, scale
     )
     stats["segments_crooked"] = int(n_crooked)
-    # index change along the edge, from the predicted camera->projector Jacobian
-    _, Jpc = model.lookup(mid)
-    dq_proj = np.einsum("nij,nj->ni", Jpc, dq)
-    n_other = np.where(fam_s == 1, model.pattern.n2, model.pattern.n1)
-    s_other = np.sign(dq_proj[:, 1] - n_other * dq_proj[:, 0]).astype(np.int64)
-    delta = np.zeros((len(sid), 2), np.int64)
-    delta[:, 0] = np.where(fam_s == 2, s_other, 0)  # along a j-line, i changes
-    delta[:, 1] = np.where(fam_s == 1, s_other, 0)  # along an i-line, j changes
-    good = s_other != 0
-    # a crossing nobody detected lets a segment run on to the next junction: an edge about twice as long
-    # as its neighbour along the same line (at either end) skipped one; drop it
-    skip = _k.edge_skips(a_j, b_j, fam_s.astype(np.intp) - 1, elen, M)
-    stats["edges_skipping"] = int((good & skip).sum())
-    good &= ~skip
-    edges = np.column_stack([a_j, b_j])[good]
-    stats["edges"] = int(good.sum())
+    # index change along the edge, from the predicted camera->projector Jacobian at its midpoint (the model's
+    # coarse grid, nearest cell): the sign of the step across the other family's lines; along a j-line i
+    # changes, along an i-line j. A crossing nobody detected lets a segment run on to the next junction: an
+    # edge about twice as long as its neighbour along the same line (at either end) skipped one; dropped.
+    # One kernel (`edge_steps`, decision 0087: formerly `RigModel.lookup`, einsum and NumPy steps).
+    edges, edge_family, edge_delta, edge_segment, n_skip = _k.edge_steps(
+        sid, a_j, b_j, fam_s, mid, dq, elen, model.J_proj_cam, float(model.cell_px), float(model.pattern.n1),
+        float(model.pattern.n2), M)
+    stats["edges_skipping"] = int(n_skip)
+    stats["edges"] = int(len(edges))
     t5 = time.perf_counter()
     ms["edges"] = 1e3 * (t5 - t4)
     ms["total"] = 1e3 * (t5 - t0)
@@ -510,9 +504,9 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         segment_centre=seg_cen * scale,
         segment_dir=seg_dir,
         edges=edges,
-        edge_family=fam_s[good],
-        edge_delta=delta[good],
-        edge_segment=sid[good],
+        edge_family=edge_family,
+        edge_delta=edge_delta,
+        edge_segment=edge_segment,
         stats=stats,
         junction_rms=junction_rms,
         segment_linked=seg,
