@@ -1199,3 +1199,81 @@ def edge_steps(sid, a_j, b_j, fam_s, mid, dq, elen, J_proj_cam, cell_px, n1, n2,
             eseg[k] = sid[e]
             k += 1
     return edges, efam, delta, eseg, n_skip
+
+
+@njit
+def keep_crossings(n_ring, seeds, seed_score):
+    """The candidates with at least 2 ring samples of each family (`ring_counts`): remap (ns,) int64 (the
+    kept ones numbered in order, −1 the others), their positions (K, 2) and scores (K,), the positions'
+    columns as float64 and float32 copies, and the number dropped. Formerly NumPy masks and gathers."""
+    ns = n_ring.shape[0]
+    remap = np.full(ns, -1, np.int64)
+    m = 0
+    for k in range(ns):
+        if n_ring[k, 0] >= 2 and n_ring[k, 1] >= 2:
+            remap[k] = m
+            m += 1
+    out = np.empty((m, 2))
+    sc = np.empty(m, seed_score.dtype)
+    sx = np.empty(m)
+    sy = np.empty(m)
+    sx32 = np.empty(m, np.float32)
+    sy32 = np.empty(m, np.float32)
+    for k in range(ns):
+        i = remap[k]
+        if i >= 0:
+            out[i, 0] = seeds[k, 0]
+            out[i, 1] = seeds[k, 1]
+            sc[i] = seed_score[k]
+            sx[i] = seeds[k, 0]
+            sy[i] = seeds[k, 1]
+            sx32[i] = np.float32(seeds[k, 0])
+            sy32[i] = np.float32(seeds[k, 1])
+    return remap, out, sc, sx, sy, sx32, sy32, ns - m
+
+
+@njit
+def kept_junctions(valid, qj, dr, rms, scale, seg_seed):
+    """The kept junctions in candidate order: new_id (ns + 1,) int64 (−1: dropped, and at ns), q_junction
+    (M, 2), junction_dir (M, 2, 2), junction_rms (M, 2) × scale, and segment_ends = new_id[seg_seed]
+    (S, 2). Formerly NumPy masks and gathers."""
+    ns = valid.shape[0]
+    new_id = np.full(ns + 1, -1, np.int64)
+    m = 0
+    for k in range(ns):
+        if valid[k]:
+            new_id[k] = m
+            m += 1
+    q = np.empty((m, 2))
+    d = np.empty((m, 2, 2))
+    r = np.empty((m, 2))
+    sc = np.float64(scale)
+    for k in range(ns):
+        i = new_id[k]
+        if i >= 0:
+            q[i, 0] = qj[k, 0]
+            q[i, 1] = qj[k, 1]
+            for a in range(2):
+                for b in range(2):
+                    d[i, a, b] = dr[k, a, b]
+            r[i, 0] = rms[k, 0] * sc
+            r[i, 1] = rms[k, 1] * sc
+    S = seg_seed.shape[0]
+    ends = np.empty((S, 2), np.int64)
+    for g in range(S):
+        for a in range(2):
+            ends[g, a] = new_id[seg_seed[g, a]]
+    return new_id, q, d, r, ends
+
+
+@njit
+def samples_f64(qx32, qy32, strength):
+    """q (P, 2) float64 from the float32 sample columns, and the strengths as float64."""
+    P = qx32.shape[0]
+    q = np.empty((P, 2))
+    st = np.empty(P)
+    for i in range(P):
+        q[i, 0] = qx32[i]
+        q[i, 1] = qy32[i]
+        st[i] = strength[i]
+    return q, st

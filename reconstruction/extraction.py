@@ -294,9 +294,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     )  # fmt: skip
     # float32 sample coordinates (working px), one array per coordinate for the hot loops
     nx32, ny32 = nx, ny
-    q = np.empty((len(qx32), 2))
-    q[:, 0] = qx32
-    q[:, 1] = qy32
+    q, strength64 = _k.samples_f64(qx32, qy32, strength)
     P = len(q)
     stats["samples"] = int(P)
     t3 = time.perf_counter()
@@ -347,20 +345,19 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     if len(seeds) and P:
         near, dist = look_dist(seed_grid, qx32, qy32, seeds, r_att)
         n_ring = _k.ring_counts(near, dist, fam, np.float32(r0), len(seeds))
-        crossing = (n_ring >= 2).all(axis=1)
         if options.debug:
             stats["debug_ring"] = n_ring
-        reasons["too_few_samples"] = int((~crossing).sum())
-        remap_seed = np.full(len(seeds), -1, np.int64)
-        remap_seed[np.nonzero(crossing)[0]] = np.arange(int(crossing.sum()))
-        seeds, seed_score = seeds[crossing], seed_score[crossing]
+        # the kept candidates (≥ 2 ring samples of each family), renumbered, and their coordinates as the
+        # kernels below read them: one pass (decision 0087)
+        remap_seed, seeds, seed_score, seeds_x, seeds_y, seeds_x32, seeds_y32, n_few = _k.keep_crossings(n_ring, seeds, seed_score)
+        reasons["too_few_samples"] = int(n_few)
         core = _k.crossing_cores(near, dist, remap_seed, np.float32(r0))  # samples within r0 of a kept one
     else:
         remap_seed = np.arange(len(seeds))
         core = np.zeros(P, bool)
+        seeds_x, seeds_y = seeds[:, 0].copy(), seeds[:, 1].copy()
+        seeds_x32, seeds_y32 = seeds_x.astype(np.float32), seeds_y.astype(np.float32)
     ns = len(seeds)
-    seeds_x, seeds_y = seeds[:, 0].copy(), seeds[:, 1].copy()
-    seeds_x32, seeds_y32 = seeds_x.astype(np.float32), seeds_y.astype(np.float32)
 
     # --- 5a. segments: link samples outside the crossings' cores along their line -------------------------
     # each sample looks ahead along its own line: one and two steps along the dominant axis of its
@@ -437,14 +434,14 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         stats["debug_candidates"] = seeds * scale
         stats["debug_valid"] = valid.copy()
         stats["debug_arm_of"] = arm_of.copy()
-    new_id = np.full(ns + 1, -1, np.int64)
-    new_id[:ns][valid] = np.arange(int(valid.sum()))
-    q_junction = qj[valid]
-    junction_dir = dr[valid] if ns else np.zeros((0, 2, 2))  # (the fitted i- and j-line directions)
-    junction_rms = rms_j[valid] * scale if ns else np.zeros((0, 2))
+    if ns:  # the kept junctions' ids, positions, fitted i- and j-line directions, RMS (px); the segments' ends
+        new_id, q_junction, junction_dir, junction_rms, segment_ends = _k.kept_junctions(valid, qj, dr, rms_j, scale, seg_seed)
+    else:
+        new_id = np.full(1, -1, np.int64)
+        q_junction, junction_dir, junction_rms = qj[valid], np.zeros((0, 2, 2)), np.zeros((0, 2))
+        segment_ends = new_id[seg_seed]
     M = len(q_junction)
     stats["junctions"] = M
-    segment_ends = new_id[seg_seed]
     # samples a kept junction holds are reported with it, not with their segment; near a rejected
     # crossing (T- and L-shapes: the pattern's rim, occlusions) the other line's light biases the ridge,
     # so samples there are left out of their segment
@@ -495,7 +492,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         family=fam,
         segment=seg_out,
         junction=sample_junction,
-        strength=strength.astype(np.float64),
+        strength=strength64,
         q_junction=q_junction * scale,
         junction_dir=junction_dir,
         segment_family=seg_family,
