@@ -245,16 +245,18 @@ def _facing_candidates(sid, piece, index, q, fam, pos_of, x0, y0, cell, gw, gh):
     grid's (a third of its samples), and each one's record (x, y, family, index) in the same order (read
     contiguously by the search)."""
     n = sid.shape[0]
-    cand = np.empty(2 * n + pos_of.shape[0], np.intp)
+    cand = np.empty(2 * n + pos_of.shape[0] + 1, np.intp)
     m = 0
+    # both loops branch-free (a store per item, the count advanced by the test; decision 0087): the tests
+    # are unpredictable, the stores cheap
     for u in range(n):
-        if (u == 0 or piece[u - 1] != piece[u] or u == n - 1 or piece[u + 1] != piece[u]) and math.isfinite(index[sid[u]]):
-            cand[m] = sid[u]
-            m += 1
+        end = (u == 0) or (u == n - 1) or (piece[u - 1] != piece[u]) or (piece[u + 1] != piece[u])
+        s = sid[u]
+        cand[m] = s
+        m += end & math.isfinite(index[s])
     for s in range(pos_of.shape[0]):  # samples on no trace (invalid ones carry no index)
-        if pos_of[s] < 0 and math.isfinite(index[s]):
-            cand[m] = s
-            m += 1
+        cand[m] = s
+        m += (pos_of[s] < 0) & math.isfinite(index[s])
     nc = gw * gh
     cnt = np.zeros(nc + 1, np.intp)
     cid = np.empty(m, np.intp)
