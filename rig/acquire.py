@@ -187,8 +187,8 @@ def run_scan(
         )
         stages = None
         if mode.reconstructs:
-            first, second = _scan_stages(mode, rec, request)
-            stages = StagePipeline(first, second) if request.overlap else _InlineStages(first, second)
+            first, second = scan_stages(mode, rec, request)
+            stages = StagePipeline(first, second) if request.overlap else InlineStages(first, second)
             stack.callback(stages.close)  # before the recording closes (ExitStack unwinds in reverse)
 
         def finished(results: list, *, notify: bool = True) -> None:
@@ -225,7 +225,7 @@ def run_scan(
                     if stages is None:
                         finished([(n, {"scan": n, "frame": frame_no - 1})])
                     else:
-                        finished(stages.submit(_Scan(n, frame_no - 1, timestamp_s, images)))
+                        finished(stages.submit(Scan(n, frame_no - 1, timestamp_s, images)))
                     del images
             except KeyboardInterrupt:
                 summary.interrupted = True
@@ -259,7 +259,7 @@ def save_products(result, *, ply: Path | None, depth: Path | None) -> None:
 
 
 @dataclass
-class _Scan:
+class Scan:
     """One captured scan on its way through the reconstruction: its number, the recording frame (and exposure
     time) its results are logged at, its images."""
 
@@ -269,12 +269,12 @@ class _Scan:
     images: list
 
 
-def _scan_stages(mode: ScanMode, rec, request: ScanRequest) -> tuple[Callable, Callable]:
+def scan_stages(mode: ScanMode, rec, request: ScanRequest) -> tuple[Callable, Callable]:
     """The two stages for rig/overlap.py: the mode's first stage; then its second, the log on the scan's own frame
     (Rerun's time is per thread) and the requested products. The second returns (n, info) for `on_frame`."""
     from rig.log_reconstruction import log_reconstruction
 
-    def first(scan: _Scan):
+    def first(scan: Scan):
         t0 = time.perf_counter()
         state = mode.prepare(scan.images)
         return scan, state, time.perf_counter() - t0
@@ -294,7 +294,7 @@ def _scan_stages(mode: ScanMode, rec, request: ScanRequest) -> tuple[Callable, C
     return first, second
 
 
-class _InlineStages:
+class InlineStages:
     """StagePipeline's interface, both stages on the calling thread at submit (ScanRequest.overlap = False)."""
 
     waits = 0

@@ -55,7 +55,7 @@ def log_reconstruction(
     """Log `result` on the recording stream `rec` (rr.RecordingStream) at its current time."""
     import rerun as rr
 
-    depth = np.nan_to_num(result.depth_cam, nan=0.0).astype(np.float32)
+    depth = np.fmax(result.depth_cam, np.float32(0.0))  # NaN (nothing measured) -> 0, Rerun's "no depth"; one pass
     rec.log(f"{camera_entity}/depth", rr.DepthImage(depth, meter=1000.0))
     rec.log(
         points_entity,
@@ -69,7 +69,7 @@ def log_reconstruction(
         rr.Points2D(result.junctions_cam.astype(np.float32), labels=labels, colors=colours, radii=rr.Radius.ui_points(2.0), show_labels=False),
     )
     seg_col = np.where(result.segment_labelled[:, None], np.array([[80, 160, 255]], np.uint8), np.array([[160, 160, 160]], np.uint8))
-    rec.log(f"{camera_entity}/image/grid/segments", rr.LineStrips2D(list(result.segments.astype(np.float32)), colors=seg_col, radii=rr.Radius.ui_points(0.75)))
+    rec.log(f"{camera_entity}/image/grid/segments", rr.LineStrips2D(np.asarray(result.segments, np.float32), colors=seg_col, radii=rr.Radius.ui_points(0.75)))
     s = result.stats
     scalars = {
         "junctions_found": s.get("junctions_found", 0),
