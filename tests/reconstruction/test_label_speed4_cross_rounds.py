@@ -1,7 +1,7 @@
 """The crossing rounds of labelling._crossing_seeds kept from round to round (decision 0078): each end's
 nearest labelled sample is updated from the samples the round before labelled instead of searched again,
 and the rounds stop after one that wrote nothing. Checked against the code they replace: the search split
-in two kernels equals `crossing_hits_traces`, the update equals a new search, and label_samples on a
+in two kernels equals round 2's plain-Python reference of the search, the update equals a new search, and label_samples on a
 scene whose crossing rounds label pieces over several rounds gives the same indices, positions and
 junctions as with the former round loop (patched in)."""
 
@@ -22,6 +22,9 @@ from reconstruction.rigmodel import UNLABELLED
 _spec = importlib.util.spec_from_file_location("_cont_helpers_0078", Path(__file__).with_name("test_recon_continuation.py"))
 _h = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_h)
+_spec2 = importlib.util.spec_from_file_location("_round2_ref_0078", Path(__file__).with_name("test_label_kernels_round2.py"))
+_r2 = importlib.util.module_from_spec(_spec2)
+_spec2.loader.exec_module(_r2)
 
 
 def _scene_arrays(seed: int, n_lines: int = 40):
@@ -46,7 +49,9 @@ def _scene_arrays(seed: int, n_lines: int = 40):
     return rng, q, fam, sid, tangent[sid], index
 
 
-def test_nearest_and_test_equal_crossing_hits_traces():
+def test_nearest_and_test_equal_the_plain_python_reference():
+    """The two kernels against round 2's plain-Python reference of the crossing search (not against
+    `crossing_hits_traces`, which is now these two kernels)."""
     for seed in range(5):
         rng, q, fam, sid, tangent, index = _scene_arrays(seed)
         valid = np.ones(len(q), bool)
@@ -60,10 +65,17 @@ def test_nearest_and_test_equal_crossing_hits_traces():
         sign = rng.choice([-1.0, 1.0], E)
         fe = rng.integers(1, 3, E).astype(np.int64)
         for labelled_only in (True, False):
-            o_ref, c_ref = K.crossing_hits_traces(e, te, sign, fe, q, sid, tangent, fam, index, labelled_only, radius,
-                                                  np.sin(np.deg2rad(20)), *grid)
             bd, bk = K.crossing_nearest(e, fe, q, fam, index, labelled_only, radius, *grid)
             o, c = K.crossing_test(e, te, sign, bk, q, sid, tangent, radius, np.sin(np.deg2rad(20)))
+            cand = np.flatnonzero(np.isfinite(index[sid])) if labelled_only else np.arange(len(sid))
+            fin = np.all(np.isfinite(e), axis=1)  # the reference's tree query takes finite ends only
+            o_ref = np.full(E, -1, np.intp)
+            c_ref = np.full((E, 2), np.nan)
+            o_f, c_f = _r2._crossing_hits_reference(e[fin], te[fin], sign[fin], fe[fin], q[sid[cand]],
+                                                    np.ascontiguousarray(tangent[cand]), fam[sid[cand]], radius,
+                                                    np.sin(np.deg2rad(20)))
+            o_ref[fin] = np.where(o_f >= 0, cand[np.maximum(o_f, 0)], -1)
+            c_ref[fin] = c_f
             np.testing.assert_array_equal(o, o_ref)
             np.testing.assert_array_equal(c, c_ref)
             assert 20 < (o >= 0).sum() < E - 20
