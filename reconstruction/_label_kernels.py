@@ -2302,3 +2302,55 @@ def newly_labelled(index, seen, have_seen):
             out[m] = s
             m += 1
     return lab, out[:m]
+
+
+@njit
+def group_order(comp):
+    """labelling._groups' arrays: order (n,) intp = np.argsort(comp, kind="stable") (a stable counting
+    sort) and bounds (G + 1,) intp, the starts of each run of equal ids in that order and n. Both empty when
+    an id is negative."""
+    n = comp.shape[0]
+    top = 0
+    for i in range(n):
+        if comp[i] < 0:
+            return np.empty(0, np.intp), np.empty(0, np.intp)  # not for negative ids: the caller sorts
+        top = max(top, comp[i])
+    cnt = np.zeros(top + 2, np.intp)
+    for i in range(n):
+        cnt[comp[i] + 1] += 1
+    for v in range(top + 1):
+        cnt[v + 1] += cnt[v]
+    order = np.empty(n, np.intp)
+    for i in range(n):
+        v = comp[i]
+        order[cnt[v]] = i
+        cnt[v] += 1
+    bounds = np.empty(n + 1, np.intp)
+    g = 0
+    for k in range(n):
+        if k == 0 or comp[order[k]] != comp[order[k - 1]]:
+            bounds[g] = k
+            g += 1
+    bounds[g] = n
+    return order, bounds[: g + 1]
+
+
+@njit
+def write_component(members, lab, r, inside, limit, labels, residual):
+    """label_epipolar's accepted offset: the junctions with a finite residual r ≤ limit inside the depth range
+    take their labels lab (m, 2) and residual (labels, residual written at members); returns bad (m,) bool,
+    the others, and their number."""
+    m = members.shape[0]
+    bad = np.empty(m, np.bool_)
+    nb = 0
+    for k in range(m):
+        x = r[k]
+        b = (not math.isfinite(x)) or (x > limit) or (not inside[k])
+        bad[k] = b
+        if b:
+            nb += 1
+        else:
+            labels[members[k], 0] = lab[k, 0]
+            labels[members[k], 1] = lab[k, 1]
+            residual[members[k]] = x
+    return bad, nb

@@ -140,9 +140,13 @@ def _epipolar_residual_px(model: RigModel, lines: np.ndarray, i: np.ndarray, j: 
 
 
 def _groups(comp: np.ndarray) -> list[np.ndarray]:
-    """Member index arrays of each component id in `comp` (ids in any order)."""
-    order = np.argsort(comp, kind="stable")
-    bounds = np.flatnonzero(np.diff(np.concatenate([[-1], comp[order], [-2]])))
+    """Member index arrays of each component id in `comp` (ids in any order), by increasing id, members in
+    increasing order. Ids ≥ 0 (as `_propagate` numbers them): a compiled counting sort (decision 0087)."""
+    comp = np.asarray(comp)
+    order, bounds = _k.group_order(np.ascontiguousarray(comp, np.int64)) if len(comp) else (comp, comp)
+    if len(bounds) == 0:
+        order = np.argsort(comp, kind="stable")
+        bounds = np.flatnonzero(np.diff(np.concatenate([[-1], comp[order], [-2]])))
     return [order[bounds[k] : bounds[k + 1]] for k in range(len(bounds) - 1)]
 
 
@@ -260,13 +264,11 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
                 stats["ambiguous"] += 1
             continue
         r = ch.residual
-        fin = np.isfinite(r)
-        bad = ~fin | (r > _outlier_limit(r, options)) | ~ch.inside
-        good = ~bad
-        labels[members[good]] = ch.labels[good]
-        residual[members[good]] = r[good]
+        # the inliers (finite residual within the outlier limit, inside the depth range) take their labels:
+        # one compiled pass (decision 0087)
+        bad, n_bad = _k.write_component(members, ch.labels, r, ch.inside, float(_outlier_limit(r, options)), labels, residual)
         stats["components_labelled"] += 1
-        if not bad.any():
+        if n_bad == 0:
             continue
         # Outliers: cut their edges to the inliers; what they hold together is labelled again on its own.
         outl = members[bad]
