@@ -11,7 +11,8 @@ For each 1280x1024 benchmark scene (noise 2 grey levels, one rendered frame hand
 - *reconstruction only*: extraction, labelling and triangulation (the issue's in-process time);
 
 each *sequential* (both stages one after the other on one thread: `ScanRequest.overlap = False`) and *overlapped*
-(the two stages on two threads, `rig.overlap.StagePipeline`, the default), as fast as they go; and the
+(each stage on its own thread, `rig.overlap.StagePipeline`, the default: extraction; labelling +
+triangulation; for the scan loop also the results' logging), as fast as they go; and the
 reconstruction overlapped with frames handed over at F frames/s (a camera's clock): how many scans had to wait
 for room (a camera at that rate waited on) and how far behind its clock the run ended.
 
@@ -50,13 +51,12 @@ def run(scene, image, *, frames: int, overlap: bool, fps: float | None, log: boo
     with contextlib.ExitStack() as stack:
         if log:
             rec = stack.enter_context(Recording(out, procam=scene.procam))
-            first, second = scan_stages(mode, rec, ScanRequest(out=out, frames=frames, overlap=overlap))
+            steps = scan_stages(mode, rec, ScanRequest(out=out, frames=frames, overlap=overlap))
         else:
             rec = None
-            first = lambda scan: mode.prepare(scan.images)  # noqa: E731
-            second = lambda state: (0, {"points": finish_frame(state).n_points})  # noqa: E731
-        second(first(Scan(0, 0, None, [image])))  # warm-up: compiled kernels loaded, rig model built
-        stages = StagePipeline(first, second) if overlap else InlineStages(first, second)
+            steps = (lambda scan: mode.prepare(scan.images), lambda state: (0, {"points": finish_frame(state).n_points}))
+        InlineStages(*steps).submit(Scan(0, 0, None, [image]))  # warm-up: compiled kernels loaded, rig model built
+        stages = StagePipeline(*steps) if overlap else InlineStages(*steps)
         stack.callback(stages.close)
         points = []
         t0 = time.perf_counter()
@@ -108,7 +108,7 @@ def main() -> None:
         "*Scan loop*: per scan the raw frame logged to a Rerun recording, extraction, labelling, triangulation and the "
         "results logged (depth image, points, grid overlay, statistics: rig.acquire.scan_stages), no device I/O. "
         "*Reconstruction only*: extraction, labelling and triangulation (the issue's in-process time). *Sequential*: "
-        "both stages one after the other on one thread; *overlapped*: the two stages on two threads (rig/overlap.py). "
+        "both stages one after the other on one thread; *overlapped*: each stage on its own thread (rig/overlap.py; the scan loop's logging is a third stage). "
         f"*At {args.fps:g}/s*: overlapped, one frame handed over every 1/{args.fps:g} s: the scans that had to wait for "
         "room (a camera at that rate waited on), their total wait, and how far behind the camera's clock the run ended.",
         "",

@@ -1,11 +1,11 @@
 """The acquisition loop: show/trigger → acknowledgement → settle → grab → verify → write raw → log raw → reconstruct.
 
 Orchestration only; every device call goes through the protocols in drivers.base. The reconstruction of a scan
-runs beside the capture of the next ones (rig/overlap.py: its two stages on two threads, in scan order; decision
-0088), so the loop waits for it only when both stages are busy and two scans are queued. Memory stays constant
-over any number of frames (at most a few scans in flight; nothing is kept after a scan is logged). Ctrl-C stops
-cleanly: the frames captured so far stay on disk, the scans already captured are reconstructed, and the recording
-is closed properly.
+runs beside the capture of the next ones (rig/overlap.py: extraction, labelling + triangulation, logging, each on
+its own thread, in scan order; decision 0088), so the loop waits for it only when the first stage is busy and two
+scans are queued before it. Memory stays constant over any number of frames (at most a few scans in flight; nothing
+is kept after a scan is logged). Ctrl-C stops cleanly: the frames captured so far stay on disk, the scans already
+captured are reconstructed, and the recording is closed properly.
 """
 
 from __future__ import annotations
@@ -94,9 +94,10 @@ class ScanMode:
     """What one scan projects and how its frames become a reconstruction.
 
     patterns: the projector images (pattern ids are their positions); sequence: the pattern ids shown, in
-    order, for one scan (one frame each). The reconstruction in two stages (rig/overlap.py runs them on two
-    threads): prepare(images) -> state, finish(state) -> result with points_proj, depth_cam, stats, warnings
-    (a reconstruction.pipeline.Reconstruction); both None when the scan only captures.
+    order, for one scan (one frame each). The reconstruction in two stages (rig/overlap.py runs them, and the
+    logging after them, on threads of their own): prepare(images) -> state, finish(state) -> result with
+    points_proj, depth_cam, stats, warnings (a reconstruction.pipeline.Reconstruction); both None when the scan
+    only captures.
     """
 
     name: str
@@ -187,8 +188,8 @@ def run_scan(
         )
         stages = None
         if mode.reconstructs:
-            first, second = scan_stages(mode, rec, request)
-            stages = StagePipeline(first, second) if request.overlap else InlineStages(first, second)
+            steps = scan_stages(mode, rec, request)
+            stages = StagePipeline(*steps) if request.overlap else InlineStages(*steps)
             stack.callback(stages.close)  # before the recording closes (ExitStack unwinds in reverse)
 
         def finished(results: list, *, notify: bool = True) -> None:
@@ -269,9 +270,9 @@ class Scan:
     images: list
 
 
-def scan_stages(mode: ScanMode, rec, request: ScanRequest) -> tuple[Callable, Callable]:
-    """The two stages for rig/overlap.py: the mode's first stage; then its second, the log on the scan's own frame
-    (Rerun's time is per thread) and the requested products. The second returns (n, info) for `on_frame`."""
+def scan_stages(mode: ScanMode, rec, request: ScanRequest) -> tuple[Callable, ...]:
+    """The stages of a scan for rig/overlap.py: the mode's first stage; its second; then the log on the scan's
+    own frame (Rerun's time is per thread) and the requested products. The last returns (n, info) for `on_frame`."""
     from rig.log_reconstruction import log_reconstruction
 
     def first(scan: Scan):
@@ -279,32 +280,37 @@ def scan_stages(mode: ScanMode, rec, request: ScanRequest) -> tuple[Callable, Ca
         state = mode.prepare(scan.images)
         return scan, state, time.perf_counter() - t0
 
-    def second(item) -> tuple[int, dict]:
+    def second(item):
         scan, state, s_first = item
         t0 = time.perf_counter()
         result = mode.finish(state)
-        ms = (s_first + time.perf_counter() - t0) * 1000.0
+        return scan, result, s_first + time.perf_counter() - t0
+
+    def third(item) -> tuple[int, dict]:
+        scan, result, s_reconstruct = item
         rec.set_frame(scan.frame, timestamp_s=scan.timestamp_s)
         log_reconstruction(rec.stream, result)
         save_products(result, ply=_numbered(request.ply, scan.n, request.frames), depth=_numbered(request.depth, scan.n, request.frames))
-        info = {"scan": scan.n, "frame": scan.frame, "points": int(len(result.points_proj)), "ms": ms,
+        info = {"scan": scan.n, "frame": scan.frame, "points": int(len(result.points_proj)), "ms": 1e3 * s_reconstruct,
                 "warnings": list(result.warnings)}
         return scan.n, info
 
-    return first, second
+    return first, second, third
 
 
 class InlineStages:
-    """StagePipeline's interface, both stages on the calling thread at submit (ScanRequest.overlap = False)."""
+    """StagePipeline's interface, every stage on the calling thread at submit (ScanRequest.overlap = False)."""
 
     waits = 0
     wait_s = 0.0
 
-    def __init__(self, first: Callable, second: Callable):
-        self._first, self._second = first, second
+    def __init__(self, *stages: Callable):
+        self._stages = stages
 
     def submit(self, item) -> list:
-        return [self._second(self._first(item))]
+        for stage in self._stages:
+            item = stage(item)
+        return [item]
 
     def drain(self) -> list:
         return []

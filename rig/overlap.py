@@ -1,16 +1,16 @@
-"""Reconstruction beside the capture: two worker threads, one per reconstruction stage, fed in scan order.
+"""Reconstruction beside the capture: one worker thread per stage, fed in scan order.
 
 The scan loop (rig/acquire.py) captures a scan, writes and logs its raw frames, and hands the frames to
-`StagePipeline.submit`; it goes on with the next capture at once. Thread 1 runs the first stage (`prepare`: for
-the grid, extraction), thread 2 the second (`finish`: labelling, triangulation, logging, products), so on two
-cores both stages of consecutive scans run at the same time and the loop waits only when both threads are
-busy and `depth` scans are queued (decision 0088). The reconstruction kernels release the GIL; the Python
-between them does not, which is what keeps the overlap below two.
+`StagePipeline.submit`; it goes on with the next capture at once. Each stage runs on its own thread (for the
+grid: extraction; labelling and triangulation; logging the results and writing the products), so consecutive
+scans are in different stages at the same time, on both cores, and the loop waits only when the first stage is
+busy and `depth` scans are queued before it (decision 0088). The reconstruction kernels release the GIL; the
+Python between them does not, which is what keeps the overlap below the number of cores.
 
 Memory stays bounded: at most `depth` scans wait before each stage, plus one in each stage. Results come back
 in submission order through `poll` (non-blocking) and `drain` (waits for everything submitted). The first error
 raised in a stage is re-raised, as the same exception object, by the next `submit`, `poll` or `drain` on the
-calling thread; scans queued behind it are dropped (their raw frames are already on disk). `close` stops both
+calling thread; scans queued behind it are dropped (their raw frames are already on disk). `close` stops the
 threads (idempotent); use the pipeline as a context manager.
 """
 
@@ -25,19 +25,21 @@ _STOP = object()
 
 
 class StagePipeline:
-    """prepare(item) -> state on one thread, finish(state) -> result on another, results in order.
+    """stages[0](item) on one thread, stages[1] of its result on the next, …; the last stage's results in order.
 
     depth: how many items may wait before each stage (>= 1). Counters (read on the calling thread):
     `waits` (submits that had to wait for room) and `wait_s` (their total time).
     """
 
-    def __init__(self, prepare: Callable[[Any], Any], finish: Callable[[Any], Any], *, depth: int = 2, name: str = "scan"):
+    def __init__(self, *stages: Callable[[Any], Any], depth: int = 2, name: str = "scan"):
         if depth < 1:
             raise ValueError(f"depth must be at least 1, got {depth}")
-        self._prepare, self._finish = prepare, finish
-        self._q1: queue.Queue = queue.Queue(maxsize=depth)
-        self._q2: queue.Queue = queue.Queue(maxsize=depth)
-        self._done: queue.Queue = queue.Queue()  # finished results: at most 2·depth + 2 outstanding
+        if not stages:
+            raise ValueError("a pipeline needs at least one stage")
+        queues = [queue.Queue(maxsize=depth) for _ in stages]
+        self._q1 = queues[0]
+        self._queues = queues
+        self._done: queue.Queue = queue.Queue()  # finished results, drained by the caller
         self._error: BaseException | None = None
         self._lock = threading.Lock()
         self._submitted = 0
@@ -45,9 +47,10 @@ class StagePipeline:
         self._closed = False
         self.waits = 0
         self.wait_s = 0.0
+        outs = [*queues[1:], self._done]
         self._threads = [
-            threading.Thread(target=self._run, args=(self._q1, self._prepare, self._q2), name=f"{name}-stage1", daemon=True),
-            threading.Thread(target=self._run, args=(self._q2, self._finish, self._done), name=f"{name}-stage2", daemon=True),
+            threading.Thread(target=self._run, args=(src, work, dst), name=f"{name}-stage{k + 1}", daemon=True)
+            for k, (src, work, dst) in enumerate(zip(queues, stages, outs))
         ]
         for t in self._threads:
             t.start()
@@ -117,7 +120,7 @@ class StagePipeline:
         """Wait until every submitted item has gone through both stages; their results, in order."""
         out = []
         while self._returned + len(out) < self._submitted:
-            if self._error is not None and self._q1.empty() and self._q2.empty():
+            if self._error is not None and all(q.empty() for q in self._queues):
                 break
             try:
                 r = self._done.get(timeout=0.05)
@@ -132,11 +135,11 @@ class StagePipeline:
         return out
 
     def close(self, *, timeout_s: float = 30.0) -> None:
-        """Stop both threads after the items already queued (idempotent)."""
+        """Stop the threads after the items already queued (idempotent)."""
         if self._closed:
             return
         self._closed = True
-        self._q1.put(_STOP)  # stage 1 passes it on to stage 2 once it is through its queue
+        self._q1.put(_STOP)  # each stage passes it on to the next once it is through its queue
         for t in self._threads:
             t.join(timeout=timeout_s)
 

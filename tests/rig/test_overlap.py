@@ -17,6 +17,9 @@ def test_results_come_back_in_order_and_equal_the_stages_applied_in_turn():
             got += p.submit(k)
         got += p.drain()
     assert got == [(3 * k, 3 * k + 1) for k in range(50)]
+    with StagePipeline(lambda x: x * 3, lambda y: y - 1, lambda z: ("scan", z), depth=1) as p:
+        got = [r for k in range(30) for r in p.submit(k)] + p.drain()
+    assert got == [("scan", 3 * k - 1) for k in range(30)]
 
 
 def test_the_two_stages_run_at_the_same_time():
