@@ -2354,3 +2354,52 @@ def write_component(members, lab, r, inside, limit, labels, residual):
             labels[members[k], 1] = lab[k, 1]
             residual[members[k]] = x
     return bad, nb
+
+
+@njit
+def _as_int64(x):
+    """int64(x) as NumPy's float → int64 cast gives it on x86-64 (NaN, ±inf and values beyond int64:
+    INT64_MIN)."""
+    if not (abs(x) < 9.2e18):
+        return np.iinfo(np.int64).min
+    return np.int64(x)
+
+
+@njit
+def crossing_hits(o, c, redo, have_redo, fe, index, sid):
+    """After `crossing_test` (o (R,) the crossing's labelled sample or −1, c (R, 2) the crossing): the rows
+    with a crossing, as the light-sheet check takes them. sel (K,) the ends (redo[r], or r without
+    have_redo), o_sel (K,), c_sel (K, 2), the other family 3 − fe[sel] (K,) intp, and that sample's line
+    index (K,) int64. Formerly NumPy's nonzero and gathers."""
+    R = o.shape[0]
+    k = 0
+    for r in range(R):
+        k += o[r] >= 0
+    sel = np.empty(k, np.intp)
+    o_sel = np.empty(k, o.dtype)
+    c_sel = np.empty((k, 2))
+    f_other = np.empty(k, np.intp)
+    m = np.empty(k, np.int64)
+    i = 0
+    for r in range(R):
+        if o[r] < 0:
+            continue
+        s = redo[r] if have_redo else r
+        sel[i] = s
+        o_sel[i] = o[r]
+        c_sel[i, 0] = c[r, 0]
+        c_sel[i, 1] = c[r, 1]
+        f_other[i] = 3 - fe[s]
+        m[i] = _as_int64(index[sid[o[r]]])
+        i += 1
+    return sel, o_sel, c_sel, f_other, m
+
+
+@njit
+def crossing_hits_write(sel, o_sel, kk, res, z, tol, z_min, z_max, k_end, jid_end, seed_jid, sid):
+    """The hits that pass the check (residual ≤ tol, depth within [z_min, z_max]) give their end the line kk
+    and the junction of their labelled sample (k_end, jid_end written at sel)."""
+    for r in range(sel.shape[0]):
+        if res[r] <= tol and z[r] >= z_min and z[r] <= z_max:
+            k_end[sel[r]] = kk[r]
+            jid_end[sel[r]] = seed_jid[sid[o_sel[r]]]

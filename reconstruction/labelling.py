@@ -675,7 +675,8 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
         if nt == 0:
             break
         keys = np.concatenate([todo, todo + n_pieces])
-        if st["seen"] is None:
+        first_search = st["seen"] is None
+        if first_search:
             bd, bk = _k.crossing_nearest(e, fe, q, fam, index, True, float(radius_px), *grid)
             redo = np.arange(2 * nt)
             k_end = np.full(2 * nt, UNLABELLED, np.int64)
@@ -688,18 +689,18 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
             jid_end = st["jid_end"][keys]
             k_end[redo] = UNLABELLED
             jid_end[redo] = -1
-        o, c = _k.crossing_test(e[redo], te[redo], sign[redo], bk[redo], q, sid, tangent, float(radius_px), sin_min)
-        sel = np.flatnonzero(o >= 0)
+        if first_search:  # every end (redo = 0 .. 2·nt − 1)
+            o, c = _k.crossing_test(e, te, sign, bk, q, sid, tangent, float(radius_px), sin_min)
+        else:
+            o, c = _k.crossing_test(e[redo], te[redo], sign[redo], bk[redo], q, sid, tangent, float(radius_px), sin_min)
+        # the ends with a crossing (their labelled sample's line m), checked on light sheet m: the nearest line
+        # of the piece's family, its distance and the depth; the passing ones give their end that line and
+        # junction (gathers and writes compiled, decision 0087)
+        sel, o_sel, c_sel, f_other, m = _k.crossing_hits(o, c, redo, True, fe, index, sid)
         if len(sel):
-            o = o[sel]
-            c = c[sel]
-            sel = redo[sel]
-            f = fe[sel]
-            m = index[sid[o]].astype(np.int64)
-            _, z, kk, res = model.sheet_check(c, 3 - f, m)  # light sheet m, depth, nearest line of family f
-            good = (res <= options.cross_residual_px) & (z >= depth_range_mm[0]) & (z <= depth_range_mm[1])
-            k_end[sel[good]] = kk[good]
-            jid_end[sel[good]] = seed_jid[sid[o[good]]]
+            _, z, kk, res = model.sheet_check(c_sel, f_other, m)
+            _k.crossing_hits_write(sel, o_sel, kk, res, z, float(options.cross_residual_px), float(depth_range_mm[0]),
+                                   float(depth_range_mm[1]), k_end, jid_end, seed_jid, sid)
         st["bd"][keys] = bd
         st["bk"][keys] = bk
         st["k_end"][keys] = k_end

@@ -201,12 +201,11 @@ def cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, dept
     if len(e) == 0:
         return 0
     _, bk = _k.crossing_nearest(e, fe, q, fam, index, True, float(radius_px), *grid)
-    o, c = _k.crossing_test(e, te, sign, bk, q, sid, tangent, float(radius_px), float(np.sin(np.deg2rad(20))))
-    sel = np.flatnonzero(o >= 0)
+    o, c = _k.crossing_test(e, te, sign, bk, q, sid, tangent, float(radius_px), _SIN_20)
+    sel, _, c_sel, f_other, m = _k.crossing_hits(o, c, o, False, fe, index, sid)  # (decision 0087)
     if len(sel) == 0:
         return 0
-    m = index[sid[o[sel]]].astype(np.int64)
-    _, z, k_other, res = model.sheet_check(c[sel], 3 - fe[sel], m)  # light sheet m: the line of family fe it names
+    _, z, k_other, res = model.sheet_check(c_sel, f_other, m)  # light sheet m: the line of family fe it names
     cut = np.zeros(len(e), np.bool_)
     cut[sel] = (res <= tol_px) & (z >= depth_range_mm[0]) & (z <= depth_range_mm[1]) & (k_other != kk[sel])
     if cut.any():
@@ -221,6 +220,7 @@ def cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, dept
     return int(unlabel_stretches(cut, lo, hi, sign, beyond, sid, ridge if use_ridge else np.zeros(0, np.float32), use_ridge, index, seed_jid))
 
 
+_SIN_20 = float(np.sin(np.deg2rad(20)))  # the crossing test's smallest crossing angle
 DIP_SAMPLES = 2  # samples next to an occluding edge whose line profile it cuts (about a line width)
 
 
