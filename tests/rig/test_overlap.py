@@ -105,3 +105,41 @@ def test_an_error_in_a_stage_is_raised_on_the_calling_thread_and_later_items_are
 def test_depth_must_be_positive():
     with pytest.raises(ValueError, match="depth"):
         StagePipeline(lambda x: x, lambda x: x, depth=0)
+
+
+def test_items_in_flight_stay_bounded_over_a_long_run():
+    """Memory stays constant over any number of scans: a slow last stage holds the capture back instead of
+    letting scans pile up (the payloads alive at any time are counted, not timed)."""
+    import time
+    import weakref
+
+    alive = 0
+    peak = 0
+    lock = threading.Lock()
+
+    class Payload:
+        def __init__(self):
+            nonlocal alive, peak
+            with lock:
+                alive += 1
+                peak = max(peak, alive)
+            weakref.finalize(self, _dec)
+
+    def _dec():
+        nonlocal alive
+        with lock:
+            alive -= 1
+
+    def slow(p):
+        time.sleep(0.002)
+        return 1
+
+    depth, n_stages = 2, 3
+    with StagePipeline(lambda p: p, lambda p: p, slow, depth=depth) as pipe:
+        done = 0
+        for _ in range(400):
+            done += len(pipe.submit(Payload()))
+        done += len(pipe.drain())
+    assert done == 400
+    assert peak <= n_stages * (depth + 1) + 1, peak
+    assert pipe.waits > 300, "the capture waited for the slow stage rather than queueing without bound"
