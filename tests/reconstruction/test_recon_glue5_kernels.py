@@ -1,0 +1,264 @@
+"""Glue round five (decision 0087): each new kernel against the NumPy code it replaced, on seeded random
+inputs that include the branches the harness scenes rarely reach (NaN positions, cells outside the grid,
+zero and NaN steps, negative component ids, empty inputs)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from reconstruction import _extract_kernels as xk
+from reconstruction import _label_kernels as lk
+from reconstruction import labelling
+from reconstruction.trace_ends import _facing_candidates
+
+UNL = np.iinfo(np.int64).min // 2
+
+
+def _same(a, b):
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and a.dtype == b.dtype and np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+
+
+# --- extraction ------------------------------------------------------------------------------------------
+
+
+def _edge_reference(sid, a_j, b_j, fam_s, mid, dq, elen, J, cell_px, n1, n2, M):
+    """extract_grid's edge step before 0087: RigModel.lookup, einsum, sign, masks, edge_skips."""
+    gh, gw = J.shape[:2]
+    with np.errstate(invalid="ignore"):
+        c = np.clip(np.rint(mid[:, 0] / cell_px).astype(np.intp), 0, gw - 1)
+        r = np.clip(np.rint(mid[:, 1] / cell_px).astype(np.intp), 0, gh - 1)
+        Jpc = J[r, c]
+        dq_proj = np.einsum("nij,nj->ni", Jpc, dq)
+        n_other = np.where(fam_s == 1, n2, n1)
+        s_other = np.sign(dq_proj[:, 1] - n_other * dq_proj[:, 0]).astype(np.int64)
+    delta = np.zeros((len(sid), 2), np.int64)
+    delta[:, 0] = np.where(fam_s == 2, s_other, 0)
+    delta[:, 1] = np.where(fam_s == 1, s_other, 0)
+    good = s_other != 0
+    skip = xk.edge_skips(a_j, b_j, fam_s.astype(np.intp) - 1, elen, M)
+    n_skip = int((good & skip).sum())
+    good &= ~skip
+    return np.column_stack([a_j, b_j])[good], fam_s[good], delta[good], sid[good], n_skip
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_edge_steps_equal_the_numpy_steps(seed):
+    rng = np.random.default_rng(seed)
+    gh, gw, cell = 13, 17, 8
+    J = rng.normal(size=(gh, gw, 2, 2)) * rng.uniform(0.2, 3.0, size=(gh, gw, 1, 1))
+    J.setflags(write=False)  # as RigModel holds it
+    n, M = 400, 120
+    a_j = rng.integers(0, M, n).astype(np.int64)
+    b_j = rng.integers(0, M, n).astype(np.int64)
+    fam_s = rng.integers(1, 3, n).astype(np.int8)
+    sid = rng.permutation(n * 3)[:n].astype(np.int64)
+    mid = np.column_stack([rng.uniform(-30, gw * cell + 30, n), rng.uniform(-30, gh * cell + 30, n)])
+    mid[::37] = np.nan  # NaN cell: NumPy's cast gives INT64_MIN, clipped to 0
+    mid[5] = (1e30, -1e30)  # beyond int64
+    mid[6] = (4.0 * cell + 0.5 * cell, 2.5 * cell)  # rint's half-even case
+    dq = rng.normal(size=(n, 2)) * 20
+    dq[::29] = 0.0  # zero step: no edge
+    dq[7] = (np.nan, 1.0)  # NaN step: sign NaN, cast INT64_MIN (an "edge" with that delta)
+    elen = np.hypot(dq[:, 0], dq[:, 1]) + rng.uniform(0, 5, n)
+    n1, n2 = 0.21, -3.7
+    want = _edge_reference(sid, a_j, b_j, fam_s, mid, dq, elen, J, float(cell), n1, n2, M)
+    got = xk.edge_steps(sid, a_j, b_j, fam_s, mid, dq, elen, J, float(cell), n1, n2, M)
+    for g, w in zip(got[:4], want[:4]):
+        assert _same(g, w)
+    assert got[4] == want[4]
+    assert 0 < len(got[0]) < n and got[4] > 0  # both filters did something
+    assert (got[2] == np.iinfo(np.int64).min).any()  # the NaN step's cast reproduced
+
+
+def test_edge_steps_empty():
+    J = np.ones((2, 2, 2, 2))
+    e = np.zeros(0, np.int64)
+    got = xk.edge_steps(e, e, e, np.zeros(0, np.int8), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), J, 8.0, 0.1, 2.0, 0)
+    assert got[0].shape == (0, 2) and got[2].shape == (0, 2) and got[4] == 0
+
+
+def test_keep_crossings_and_kept_junctions_equal_the_masks():
+    rng = np.random.default_rng(4)
+    ns = 300
+    n_ring = rng.integers(0, 5, size=(ns, 2)).astype(np.int64)
+    seeds = rng.uniform(0, 900, size=(ns, 2))
+    score = rng.normal(size=ns).astype(np.float32)
+    crossing = (n_ring >= 2).all(axis=1)
+    remap = np.full(ns, -1, np.int64)
+    remap[np.nonzero(crossing)[0]] = np.arange(int(crossing.sum()))
+    got = xk.keep_crossings(n_ring, seeds, score)
+    kept = seeds[crossing]
+    want = (remap, kept, score[crossing], kept[:, 0].copy(), kept[:, 1].copy(), kept[:, 0].astype(np.float32),
+            kept[:, 1].astype(np.float32))
+    for g, w in zip(got[:7], want):
+        assert _same(g, w)
+    assert got[7] == int((~crossing).sum()) > 0
+
+    K = len(kept)
+    valid = rng.random(K) < 0.6
+    qj = rng.uniform(0, 900, size=(K, 2))
+    dr = rng.normal(size=(K, 2, 2))
+    rms = rng.uniform(0, 1, size=(K, 2))
+    seg_seed = rng.integers(-1, K, size=(500, 2)).astype(np.int64)
+    for scale in (1, 2):
+        new_id = np.full(K + 1, -1, np.int64)
+        new_id[:K][valid] = np.arange(int(valid.sum()))
+        want = (new_id, qj[valid], dr[valid], rms[valid] * scale, new_id[seg_seed])
+        got = xk.kept_junctions(valid, qj, dr, rms, scale, seg_seed)
+        for g, w in zip(got, want):
+            assert _same(g, w)
+
+
+def test_samples_f64_equal_the_casts():
+    rng = np.random.default_rng(5)
+    qx, qy, st = (rng.uniform(-5, 1300, 1000).astype(np.float32) for _ in range(3))
+    q, s64 = xk.samples_f64(qx, qy, st)
+    assert _same(q, np.column_stack([qx, qy]).astype(np.float64)) and _same(s64, st.astype(np.float64))
+
+
+# --- labelling ---------------------------------------------------------------------------------------------
+
+
+def test_label_sample_passes_equal_the_masks():
+    rng = np.random.default_rng(6)
+    P = 5000
+    valid = rng.random(P) < 0.8
+    near_other = rng.random(P) < 0.3
+    seed = np.where(rng.random(P) < 0.2, rng.integers(-5, 30, P), UNL).astype(np.int64)
+    k_idx, n_mix, n_seeds = lk.kept_samples(valid, near_other, seed, UNL)
+    kept = valid & ~near_other
+    assert _same(k_idx, np.flatnonzero(kept))
+    assert n_mix == int((valid & near_other).sum()) and n_seeds == int(np.count_nonzero((seed != UNL) & kept)) > 0
+
+    index = np.where(rng.random(P) < 0.5, rng.integers(0, 40, P).astype(np.float64), np.nan)
+    sid = rng.permutation(P)[:3000]
+    g, n_un = lk.labelled_positions(index, sid)
+    got = np.isfinite(index[sid])
+    assert _same(g, np.flatnonzero(got)) and n_un == int((~got).sum())
+
+    seen = np.isfinite(index) & (rng.random(P) < 0.7)
+    lab, new_s = lk.newly_labelled(index, seen, True)
+    assert _same(lab, np.isfinite(index)) and _same(new_s, np.flatnonzero(np.isfinite(index) & ~seen)) and len(new_s)
+    lab, new_s = lk.newly_labelled(index, np.zeros(0, np.bool_), False)
+    assert _same(lab, np.isfinite(index)) and len(new_s) == 0
+
+
+def _groups_reference(comp):
+    order = np.argsort(comp, kind="stable")
+    bounds = np.flatnonzero(np.diff(np.concatenate([[-1], comp[order], [-2]])))
+    return [order[bounds[k] : bounds[k + 1]] for k in range(len(bounds) - 1)]
+
+
+@pytest.mark.parametrize("neg", [False, True])
+def test_groups_equal_the_stable_argsort(neg):
+    rng = np.random.default_rng(8)
+    comp = rng.integers(0, 60, 700).astype(np.int64) * 3  # gaps between ids
+    if neg:
+        comp[::50] = -4  # the NumPy path
+    got = labelling._groups(comp)
+    want = _groups_reference(comp)
+    assert len(got) == len(want) > 10
+    assert all(_same(np.asarray(g, np.int64), np.asarray(w, np.int64)) for g, w in zip(got, want))
+    order, bounds = lk.group_order(comp)
+    assert (len(order) == 0) == neg
+
+
+def test_write_component_equals_the_masks():
+    rng = np.random.default_rng(9)
+    M, m = 400, 150
+    members = rng.permutation(M)[:m].astype(np.intp)
+    lab = rng.integers(-20, 20, size=(m, 2)).astype(np.int64)
+    r = rng.exponential(0.5, m)
+    r[::13] = np.nan
+    r[::17] = np.inf
+    inside = rng.random(m) < 0.9
+    limit = 0.8
+    labels = np.full((M, 2), UNL, np.int64)
+    residual = np.full(M, np.nan)
+    bad, nb = lk.write_component(members, lab, r, inside, limit, labels, residual)
+    want_bad = ~np.isfinite(r) | (r > limit) | ~inside
+    w_labels = np.full((M, 2), UNL, np.int64)
+    w_res = np.full(M, np.nan)
+    good = ~want_bad
+    w_labels[members[good]] = lab[good]
+    w_res[members[good]] = r[good]
+    assert _same(bad, want_bad) and nb == int(want_bad.sum()) > 0
+    assert _same(labels, w_labels) and _same(residual, w_res)
+
+
+def test_crossing_hits_equal_the_gathers():
+    rng = np.random.default_rng(10)
+    P, R = 3000, 500
+    index = np.where(rng.random(P) < 0.6, rng.integers(-3, 40, P).astype(np.float64), np.nan)
+    sid = rng.permutation(P)
+    o = np.where(rng.random(R) < 0.4, rng.integers(0, P, R), -1).astype(np.intp)
+    c = rng.uniform(0, 1000, size=(R, 2))
+    fe = rng.integers(1, 3, 2 * R).astype(np.int64)
+    redo = np.sort(rng.permutation(2 * R)[:R]).astype(np.intp)
+    sel_w = np.flatnonzero(o >= 0)
+    with np.errstate(invalid="ignore"):
+        m_w = index[sid[o[sel_w]]].astype(np.int64)  # NaN: INT64_MIN, as the kernel
+    for have in (True, False):
+        sel, o_sel, c_sel, f_other, m = lk.crossing_hits(o, c, redo, have, fe, index, sid)
+        ends = redo[sel_w] if have else sel_w
+        assert _same(sel, ends.astype(np.intp)) and _same(o_sel, o[sel_w]) and _same(c_sel, c[sel_w])
+        assert _same(f_other, (3 - fe[ends]).astype(np.intp)) and _same(m, m_w)
+    sel, o_sel, c_sel, f_other, m = lk.crossing_hits(o, c, redo, True, fe, index, sid)
+    K = len(sel)
+    kk = rng.integers(0, 40, K).astype(np.int64)
+    res = rng.exponential(1.0, K)
+    z = rng.uniform(300, 1500, K)
+    res[::7] = np.nan
+    seed_jid = rng.integers(-1, 300, P).astype(np.int64)
+    k_end = np.full(2 * R, UNL, np.int64)
+    jid_end = np.full(2 * R, -1, np.int64)
+    k_w, j_w = k_end.copy(), jid_end.copy()
+    lk.crossing_hits_write(sel, o_sel, kk, res, z, 1.2, 500.0, 1400.0, k_end, jid_end, seed_jid, sid)
+    good = (res <= 1.2) & (z >= 500.0) & (z <= 1400.0)
+    k_w[sel[good]] = kk[good]
+    j_w[sel[good]] = seed_jid[sid[o_sel[good]]]
+    assert _same(k_end, k_w) and _same(jid_end, j_w) and 0 < good.sum() < K
+
+
+def _facing_reference(sid, piece, index, q, fam, pos_of, x0, y0, cell, gw, gh):
+    n = len(sid)
+    ends = np.zeros(n, bool)
+    if n:
+        ends[0] = ends[-1] = True
+        ends[1:] |= piece[1:] != piece[:-1]
+        ends[:-1] |= piece[1:] != piece[:-1]
+    cand = np.concatenate([sid[ends & np.isfinite(index[sid])], np.flatnonzero((pos_of < 0) & np.isfinite(index))])
+    xx = np.clip(np.floor((q[cand, 0] - x0) / cell).astype(np.intp), 0, gw - 1)
+    yy = np.clip(np.floor((q[cand, 1] - y0) / cell).astype(np.intp), 0, gh - 1)
+    cid = yy * gw + xx
+    order = np.argsort(cid, kind="stable")
+    out = cand[order]
+    start = np.concatenate([[0], np.cumsum(np.bincount(cid, minlength=gw * gh))])
+    rec = np.column_stack([q[out, 0], q[out, 1], fam[out].astype(np.float64), index[out]])
+    one = np.full((gw * gh, 2), -1, np.int32)
+    for s, b in zip(out, cid[order]):
+        f, v = fam[s] - 1, int(index[s])
+        one[b, f] = v if one[b, f] == -1 else (one[b, f] if one[b, f] == v else -2)
+    return start, out, rec, one
+
+
+def test_facing_candidates_equal_the_gathered_lists():
+    rng = np.random.default_rng(11)
+    P = 4000
+    q = rng.uniform(0, 400, size=(P, 2))
+    fam = rng.integers(1, 3, P).astype(np.int64)
+    index = np.where(rng.random(P) < 0.7, rng.integers(0, 6, P).astype(np.float64), np.nan)
+    sid = rng.permutation(P)[:2500].astype(np.int64)
+    piece = np.sort(rng.integers(0, 300, len(sid))).astype(np.int64)
+    piece = np.unique(piece, return_inverse=True)[1].astype(np.int64)  # 0 .. n_pieces − 1, no gaps
+    pos_of = np.full(P, -1, np.int64)
+    pos_of[sid] = np.arange(len(sid))
+    args = (sid, piece, index, q, fam, pos_of, -2.0, -3.0, 37.0, 12, 12)
+    got = _facing_candidates(*args)
+    want = _facing_reference(*args)
+    for g, w in zip(got, want):
+        assert np.array_equal(np.asarray(g), np.asarray(w))
+    assert len(got[1]) > 300 and (got[3] == -2).any()
+    assert np.isfinite(got[2][:, 3]).all()
