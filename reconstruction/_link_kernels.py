@@ -118,3 +118,105 @@ def facing_links_mid(e, u, f_e, n_p, labelled, reach, lateral, cos_facing):
                             out_j[nl] = j
                             nl += 1
     return out_a[:nl], out_b[:nl], out_g[:nl], out_i[:nl], out_j[:nl]
+
+
+# --- continuation._check_pieces' gathers (glue round five, decision 0087) ------------------------------------
+
+
+@njit
+def _as_int64(x):
+    """int64(x) as NumPy's float → int64 cast gives it on x86-64 (NaN, ±inf, beyond int64: INT64_MIN)."""
+    if not (abs(x) < 9.2e18):
+        return np.iinfo(np.int64).min
+    return np.int64(x)
+
+
+@njit
+def check_ends(cand, n_p, e, u, f_e):
+    """The two ends of pieces cand (nc,): first ends then last ends (rows cand and cand + n_p of e, u (2·n_p, 2)
+    and f_e (2·n_p,)), as (2·nc, 2), (2·nc, 2), (2·nc,) arrays."""
+    nc = cand.shape[0]
+    E = np.empty((2 * nc, 2))
+    U = np.empty((2 * nc, 2))
+    fe = np.empty(2 * nc, f_e.dtype)
+    for h in range(2):
+        for i in range(nc):
+            r = cand[i] + h * n_p
+            k = h * nc + i
+            E[k, 0] = e[r, 0]
+            E[k, 1] = e[r, 1]
+            U[k, 0] = u[r, 0]
+            U[k, 1] = u[r, 1]
+            fe[k] = f_e[r]
+    return E, U, fe
+
+
+@njit
+def check_hits(o, c, fe, k_of, cand):
+    """The ends (rows of `check_ends`) with a crossing (o ≥ 0): sel (K,) intp, their crossings (K, 2), their
+    family (K,) and their piece's chain index k_of[cand[row mod nc]] as int64 (K,)."""
+    R = o.shape[0]
+    nc = cand.shape[0]
+    k = 0
+    for r in range(R):
+        k += o[r] >= 0
+    sel = np.empty(k, np.intp)
+    c_sel = np.empty((k, 2))
+    f_sel = np.empty(k, fe.dtype)
+    kk = np.empty(k, np.int64)
+    i = 0
+    for r in range(R):
+        if o[r] < 0:
+            continue
+        sel[i] = r
+        c_sel[i, 0] = c[r, 0]
+        c_sel[i, 1] = c[r, 1]
+        f_sel[i] = fe[r]
+        kk[i] = _as_int64(k_of[cand[r % nc]])
+        i += 1
+    return sel, c_sel, f_sel, kk
+
+
+@njit
+def check_verdicts(o, sel, res, tol, nc):
+    """Per piece (nc,): at least one end evaluated (o ≥ 0) and none whose crossing lies farther than tol from
+    a line (res (K,) at rows sel)."""
+    passed = np.zeros(2 * nc, np.bool_)
+    for i in range(sel.shape[0]):
+        passed[sel[i]] = res[i] <= tol
+    good = np.empty(nc, np.bool_)
+    for i in range(nc):
+        ev0 = o[i] >= 0
+        ev1 = o[nc + i] >= 0
+        fail = (ev0 and not passed[i]) or (ev1 and not passed[nc + i])
+        good[i] = (ev0 or ev1) and not fail
+    return good
+
+
+@njit
+def check_samples(pos, q, sid, fam, piece, k_of):
+    """The samples at trace positions pos: positions (N, 2), families (N,) and their piece's chain index
+    k_of[piece] as int64 (N,)."""
+    N = pos.shape[0]
+    qq = np.empty((N, 2))
+    ff = np.empty(N, fam.dtype)
+    kk = np.empty(N, np.int64)
+    for i in range(N):
+        s = sid[pos[i]]
+        qq[i, 0] = q[s, 0]
+        qq[i, 1] = q[s, 1]
+        ff[i] = fam[s]
+        kk[i] = _as_int64(k_of[piece[pos[i]]])
+    return qq, ff, kk
+
+
+@njit
+def check_depth(good, cand, pos, piece, z, z_min, z_max, n_p):
+    """good (nc,) &= no sample of the piece (positions pos, depths z) outside [z_min, z_max] (in place)."""
+    bad = np.zeros(n_p, np.bool_)
+    for i in range(pos.shape[0]):
+        if not (z[i] >= z_min and z[i] <= z_max):
+            bad[piece[pos[i]]] = True
+    for i in range(cand.shape[0]):
+        if bad[cand[i]]:
+            good[i] = False

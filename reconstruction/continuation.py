@@ -41,7 +41,7 @@ import numpy as np
 
 from reconstruction._continuation_kernels import chain_values, crossing_in_gap, piece_ends, samples_of, write_pieces
 from reconstruction._label_kernels import crossing_hits_traces, sample_grid
-from reconstruction._link_kernels import facing_links_mid
+from reconstruction._link_kernels import check_depth, check_ends, check_hits, check_samples, check_verdicts, facing_links_mid
 from reconstruction._label_kernels import project_nearest_line as project_nearest_line_kernel
 from reconstruction.rigmodel import RigModel
 
@@ -49,6 +49,8 @@ from reconstruction.rigmodel import RigModel
 FACING_DEG = 12.0
 #: a crossing's two tangents must differ by at least this to be intersected
 MIN_CROSSING_DEG = 20.0
+_SIN_MIN_CROSSING = float(np.sin(np.deg2rad(MIN_CROSSING_DEG)))
+_COS_FACING = float(np.cos(np.deg2rad(FACING_DEG)))
 
 
 def crossing_gap_px(sigma_px: float, *, mix_sigma: float, trim_sigma: float, min_angle_deg: float) -> float:
@@ -142,7 +144,7 @@ def continue_lines(
     f_e = fam[sid[end_pos]].astype(np.int64)
 
     # 1. links between facing ends across a crossing's gap
-    a, b, gap, i, j = facing_links_mid(e, u, f_e, n_p, labelled, float(reach_px), float(lateral_px), float(np.cos(np.deg2rad(FACING_DEG))))
+    a, b, gap, i, j = facing_links_mid(e, u, f_e, n_p, labelled, float(reach_px), float(lateral_px), _COS_FACING)
     if len(a) == 0:
         return stats
     radius = float(reach_px if check_radius_px is None else check_radius_px)
@@ -182,30 +184,21 @@ def continue_lines(
 
 def _check_pieces(cand, k_of, q, fam, sid, piece, tangent, e, u, f_e, model: RigModel, depth_range_mm, radius, tol_px, grid):
     """Step 2 of the module doc for pieces `cand`: (len(cand),) bool."""
+    # (the gathers and tests around the two searches compiled, decision 0087: `_link_kernels.check_*`)
     n_p = len(e) // 2
     nc = len(cand)
-    end_ids = np.concatenate([cand, cand + n_p])
-    pe = np.concatenate([cand, cand])
-    fe = f_e[end_ids]
-    o, c = crossing_hits_traces(np.ascontiguousarray(e[end_ids]), np.ascontiguousarray(u[end_ids]), np.ones(2 * nc), fe, q, sid,
-                                tangent, fam, np.zeros(0), False, float(radius), float(np.sin(np.deg2rad(MIN_CROSSING_DEG))), *grid)
-    evaluated = o >= 0
-    passed = np.zeros(2 * nc, bool)
-    sel = np.flatnonzero(evaluated)
-    if len(sel):
-        _, _, _, res = model.sheet_check(c[sel], fe[sel], k_of[pe[sel]].astype(np.int64))  # nearest line of 3 − fe
-        passed[sel] = res <= tol_px
-    evaluated = evaluated.reshape(2, nc)
-    passed = passed.reshape(2, nc)
-    good = ~(evaluated & ~passed).any(axis=0) & evaluated.any(axis=0)
+    E, U, fe = check_ends(cand, n_p, e, u, f_e)  # first ends, then last ends
+    o, c = crossing_hits_traces(E, U, np.ones(2 * nc), fe, q, sid, tangent, fam, np.zeros(0), False, float(radius), _SIN_MIN_CROSSING,
+                                *grid)
+    sel, c_sel, f_sel, k_sel = check_hits(o, c, fe, k_of, cand)
+    res = model.sheet_check(c_sel, f_sel, k_sel)[3] if len(sel) else np.zeros(0)  # nearest line of 3 − fe
+    good = check_verdicts(o, sel, res, float(tol_px), nc)
     # the working volume, on the piece's light sheet
     flag = np.zeros(n_p, bool)
     flag[cand[good]] = True
     pos = samples_of(piece, flag)
     if len(pos):
-        _, z, _, _ = model.sheet_check(q[sid[pos]], fam[sid[pos]], k_of[piece[pos]].astype(np.int64))
-        out = ~((z >= depth_range_mm[0]) & (z <= depth_range_mm[1]))
-        bad = np.zeros(n_p, bool)
-        bad[piece[pos[out]]] = True
-        good &= ~bad[cand]
+        q_pos, f_pos, k_pos = check_samples(pos, q, sid, fam, piece, k_of)
+        _, z, _, _ = model.sheet_check(q_pos, f_pos, k_pos)
+        check_depth(good, cand, pos, piece, z, float(depth_range_mm[0]), float(depth_range_mm[1]), n_p)
     return good
