@@ -191,13 +191,19 @@ def _noise_row_starts(H: int, rows: int) -> np.ndarray:
     return starts
 
 
+def _clip(x: float, lo: float, hi: float) -> float:
+    """float(np.clip(x, lo, hi)) for Python floats, without NumPy's scalar overhead: min(max(x, lo), hi) (the
+    same value, NaN included; hi when lo > hi, as np.clip)."""
+    return float(min(max(x, lo), hi))
+
+
 def sigma_for(model: RigModel, options: ExtractOptions) -> float:
     """The smoothing scale: given, or 0.4 × the predicted line width in the camera (at least 1 px).
 
     A bright bar of width w smoothed by σ ≥ w/(2√3) has a single ridge at its centre (Steger 1998)."""
     if options.sigma_px is not None:
         return float(options.sigma_px)
-    return float(np.clip(0.4 * model.line_width_cam_px, 1.0, 8.0))
+    return _clip(0.4 * model.line_width_cam_px, 1.0, 8.0)
 
 
 @lru_cache(maxsize=16)
@@ -312,7 +318,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     # --- 4a. crossing candidates: local maxima of the weaker curvature ------------------------------------
     step = model.junction_step_cam_px / scale  # predicted junction spacing along a line, working px
     cell = float(max(1.5, 0.2 * step))
-    r0 = float(np.clip(1.6 * s_w + 0.5, 1.5, 0.3 * step))  # core: the crossing biases the ridge there
+    r0 = _clip(1.6 * s_w + 0.5, 1.5, 0.3 * step)  # core: the crossing biases the ridge there
     r_att = float(min(r0 + 1.5 * s_w + 2.0, 0.45 * step + 1.0))  # a line reaching this close meets the crossing
     R = float(max(0.6 * step, r_att + 1.0))  # arms (further bounded by the neighbouring junctions)
     gh, gw = int(Hw / cell) + 1, int(Ww / cell) + 1
