@@ -2403,3 +2403,23 @@ def crossing_hits_write(sel, o_sel, kk, res, z, tol, z_min, z_max, k_end, jid_en
         if res[r] <= tol and z[r] >= z_min and z[r] <= z_max:
             k_end[sel[r]] = kk[r]
             jid_end[sel[r]] = seed_jid[sid[o_sel[r]]]
+
+
+@njit
+def label_arrays(q, family, unlabelled):
+    """label_samples' per-sample arrays, in one pass: the families as intp, index (P,) NaN, q_out (P, 2) a copy
+    of q, seed_jid (P,) −1 and seed (P,) `unlabelled` (int64)."""
+    P = q.shape[0]
+    fam = np.empty(P, np.intp)
+    index = np.empty(P)
+    q_out = np.empty((P, 2))
+    seed_jid = np.empty(P, np.int64)
+    seed = np.empty(P, np.int64)
+    for i in range(P):
+        fam[i] = family[i]
+        index[i] = np.nan
+        q_out[i, 0] = q[i, 0]
+        q_out[i, 1] = q[i, 1]
+        seed_jid[i] = -1
+        seed[i] = unlabelled
+    return fam, index, q_out, seed_jid, seed

@@ -37,6 +37,8 @@ sheets and projections go through `RigModel`.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from reconstruction._continuation_kernels import chain_values, crossing_in_gap, piece_ends, samples_of, write_pieces
@@ -53,6 +55,7 @@ _SIN_MIN_CROSSING = float(np.sin(np.deg2rad(MIN_CROSSING_DEG)))
 _COS_FACING = float(np.cos(np.deg2rad(FACING_DEG)))
 
 
+@lru_cache(maxsize=64)
 def crossing_gap_px(sigma_px: float, *, mix_sigma: float, trim_sigma: float, min_angle_deg: float) -> float:
     """The longest gap a crossing leaves in a trace (camera px, decision 0072): the mixing zone (mix_sigma·σ
     from the other line's samples) and the trimmed ends (trim_sigma·σ) on both sides, measured along a line

@@ -817,11 +817,9 @@ def label_samples(
     projections stay with `RigModel`. Times: benchmarks/results/bench_reconstruction.md.
     """
     q = np.asarray(obs.q, np.float64).reshape(-1, 2)
-    fam = np.asarray(obs.family).astype(np.intp)
+    # the families (intp), index (NaN), q_out (a copy of q), seed_jid (−1) and seed (UNLABELLED): one pass
+    fam, index, q_out, seed_jid, seed = _k.label_arrays(q, np.asarray(obs.family).reshape(-1), UNLABELLED)
     P = len(q)
-    index = np.full(P, np.nan)
-    q_out = q.copy()
-    seed_jid = np.full(P, -1, np.int64)
     stats = {"samples": P, "mixing_zone": 0, "snapped_to_junction_line": 0, "seeds": 0, "seed_conflicts": 0, "traces": 0,
              "traces_seeded": 0, "traces_conflicting": 0, "samples_labelled": 0, "samples_unseeded": 0, "cut_profile": 0}
     # Grid of cells of the extraction's sampling step (padded so that neighbour lookups never wrap): samples
@@ -840,7 +838,6 @@ def label_samples(
     # 2. Seeds: samples near a labelled junction, on its fitted line of their family.
     lab = np.asarray(junction_labels, np.int64).reshape(-1, 2)
     labelled = np.flatnonzero(lab[:, 0] != UNLABELLED)
-    seed = np.full(P, UNLABELLED, np.int64)
     if len(labelled):
         jdir = np.ascontiguousarray(obs.junction_dir, np.float64).reshape(-1, 2, 2)
         n_snap = _k.junction_seeds(q, fam, valid, near_other, np.ascontiguousarray(obs.q_junction, np.float64).reshape(-1, 2),
@@ -864,7 +861,7 @@ def label_samples(
             # one linking: extraction's segments, ordered along their fitted lines and cut (decision 0085)
             order, piece, ts, tangent = _k.traces_from_segments(
                 q, fam, np.asarray(seg_linked, np.int64), np.ascontiguousarray(obs.segment_centre, np.float64).reshape(-1, 2),
-                np.ascontiguousarray(obs.segment_dir, np.float64).reshape(-1, 2), k_idx.astype(np.intp), float(options.link_px * cell),
+                np.ascontiguousarray(obs.segment_dir, np.float64).reshape(-1, 2), k_idx, float(options.link_px * cell),
                 float(options.lateral_px), float(np.cos(np.deg2rad(options.max_turn_deg))), max(1, int(round(options.direction_px))),
                 ridge if use_ridge else np.zeros(0, np.float32), np.float32(options.max_ridge_step), use_ridge)
         else:
