@@ -262,3 +262,71 @@ def test_facing_candidates_equal_the_gathered_lists():
         assert np.array_equal(np.asarray(g), np.asarray(w))
     assert len(got[1]) > 300 and (got[3] == -2).any()
     assert np.isfinite(got[2][:, 3]).all()
+
+
+def test_label_arrays_equal_the_numpy_allocations():
+    rng = np.random.default_rng(12)
+    q = rng.uniform(0, 1000, size=(777, 2))
+    fam8 = rng.integers(0, 3, 777).astype(np.int8)
+    fam, index, q_out, seed_jid, seed = lk.label_arrays(q, fam8, UNL)
+    assert _same(fam, fam8.astype(np.intp)) and _same(index, np.full(777, np.nan)) and _same(q_out, q)
+    assert _same(seed_jid, np.full(777, -1, np.int64)) and _same(seed, np.full(777, UNL, np.int64))
+    q_out[0, 0] = -1.0
+    assert q[0, 0] != -1.0  # a copy
+
+
+# --- continuation._check_pieces ------------------------------------------------------------------------------
+
+
+def test_check_piece_kernels_equal_the_numpy_steps():
+    from reconstruction import _link_kernels as kk
+
+    rng = np.random.default_rng(13)
+    n_p, P, n = 200, 3000, 2500
+    e = rng.uniform(0, 900, size=(2 * n_p, 2))
+    u = rng.normal(size=(2 * n_p, 2))
+    f_e = rng.integers(1, 3, 2 * n_p).astype(np.int64)
+    cand = np.sort(rng.permutation(n_p)[:70]).astype(np.intp)
+    nc = len(cand)
+    k_of = np.where(rng.random(n_p) < 0.9, rng.integers(-5, 40, n_p).astype(np.float64), np.nan)
+    # the ends
+    end_ids = np.concatenate([cand, cand + n_p])
+    E, U, fe = kk.check_ends(cand, n_p, e, u, f_e)
+    assert _same(E, e[end_ids]) and _same(U, u[end_ids]) and _same(fe, f_e[end_ids])
+    # the hits
+    o = np.where(rng.random(2 * nc) < 0.6, rng.integers(0, n, 2 * nc), -1).astype(np.intp)
+    c = rng.uniform(0, 900, size=(2 * nc, 2))
+    pe = np.concatenate([cand, cand])
+    sel_w = np.flatnonzero(o >= 0)
+    sel, c_sel, f_sel, k_sel = kk.check_hits(o, c, fe, k_of, cand)
+    with np.errstate(invalid="ignore"):
+        k_w = k_of[pe[sel_w]].astype(np.int64)
+    assert _same(sel, sel_w.astype(np.intp)) and _same(c_sel, c[sel_w]) and _same(f_sel, fe[sel_w]) and _same(k_sel, k_w)
+    # the verdicts
+    res = rng.exponential(1.0, len(sel))
+    res[::9] = np.nan
+    good = kk.check_verdicts(o, sel, res, 1.1, nc)
+    evaluated = o >= 0
+    passed = np.zeros(2 * nc, bool)
+    passed[sel] = res <= 1.1
+    evaluated, passed = evaluated.reshape(2, nc), passed.reshape(2, nc)
+    good_w = ~(evaluated & ~passed).any(axis=0) & evaluated.any(axis=0)
+    assert _same(good, good_w) and 0 < good.sum() < nc
+    # the samples and the depth test
+    q = rng.uniform(0, 900, size=(P, 2))
+    fam = rng.integers(1, 3, P).astype(np.intp)
+    sid = rng.permutation(P)[:n].astype(np.int64)
+    piece = np.sort(rng.integers(0, n_p, n)).astype(np.int64)
+    pos = np.sort(rng.permutation(n)[:400]).astype(np.intp)
+    q_pos, f_pos, k_pos = kk.check_samples(pos, q, sid, fam, piece, k_of)
+    with np.errstate(invalid="ignore"):
+        k_w = k_of[piece[pos]].astype(np.int64)
+    assert _same(q_pos, q[sid[pos]]) and _same(f_pos, fam[sid[pos]]) and _same(k_pos, k_w)
+    z = rng.uniform(200, 1600, len(pos))
+    z[::31] = np.nan
+    g1 = good.copy()
+    kk.check_depth(g1, cand, pos, piece, z, 300.0, 1500.0, n_p)
+    out = ~((z >= 300.0) & (z <= 1500.0))
+    bad = np.zeros(n_p, bool)
+    bad[piece[pos[out]]] = True
+    assert _same(g1, good & ~bad[cand]) and (g1 != good).any()
