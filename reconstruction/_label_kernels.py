@@ -2423,3 +2423,31 @@ def label_arrays(q, family, unlabelled):
         seed_jid[i] = -1
         seed[i] = unlabelled
     return fam, index, q_out, seed_jid, seed
+
+
+@njit
+def offset_choice(rel, ln, xy_cam, xy_junction, index_min, index_max, fx, n_refs, band_px, min_inside, cap2, R, t, z_min,
+                  z_max):
+    """labelling._choose_offset's compiled part in one call (decision 0087): `offset_scores`, the depth walk
+    over the 16 best (`offset_depth_walk`) and the best offset's residuals (`offset_residuals`), in that
+    order with the same arguments. Returns status (offset_scores'), n_fail (offsets outside the depth range,
+    0 when status ≠ 0), ok (an offset passed the walk), s1 and s2 (the scores of the best two passing
+    offsets; s2 = cap2 without a second), n_eff, off_best (2,) int64, r_full (m,) and inside (m,) (the walk's
+    output; empty unless ok)."""
+    status, off, score, ranked, n_eff = offset_scores(rel, ln, xy_junction, index_min, index_max, fx, n_refs, band_px,
+                                                      min_inside, cap2)
+    off_best = np.zeros(2, np.int64)
+    if status != 0:
+        return status, 0, False, 0.0, 0.0, n_eff, off_best, np.empty(0), np.empty(0, np.bool_)
+    top = ranked[: min(len(ranked), 16)]
+    pass_k, n_fail, inside = offset_depth_walk(rel, off, top, xy_cam, xy_junction, index_min, index_max, R, t, z_min, z_max,
+                                               min_inside)
+    if pass_k[0] < 0:
+        return status, n_fail, False, 0.0, 0.0, n_eff, off_best, np.empty(0), np.empty(0, np.bool_)
+    best = top[pass_k[0]]
+    s1 = score[best]
+    s2 = score[top[pass_k[1]]] if pass_k[1] >= 0 else cap2
+    off_best[0] = off[best, 0]
+    off_best[1] = off[best, 1]
+    r_full = offset_residuals(rel, off_best[0], off_best[1], ln, xy_junction, index_min, index_max, fx)
+    return status, n_fail, True, s1, s2, n_eff, off_best, r_full, inside

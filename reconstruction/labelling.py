@@ -18,6 +18,7 @@ Derivations and the ambiguity test: docs/reconstruction.md.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -172,32 +173,26 @@ def _choose_offset(
     cap2 = options.residual_cap_px**2
     # Candidate offsets (pattern junctions near the epipolar lines of a few reference junctions), the
     # admissible ones (labels nearly all inside the pattern; the few outside, shifted by a bad edge, become
-    # outliers below) and their scores: one compiled pass (`_label_kernels.offset_scores`).
-    status, off, score, ranked, n_eff = _k.offset_scores(
-        rel, ln, model.xy_junction, int(model.index_min), int(model.index_max), float(model.fx_proj),
-        int(options.candidate_refs), float(options.candidate_band_px), float(options.min_inside_fraction), float(cap2))
+    # outliers below) and their scores (`_label_kernels.offset_scores`); the walk down the ranking (its 16
+    # best) until two offsets put the surface inside the working volume (`offset_depth_walk`, decision 0078;
+    # formerly chunks of 4 through `offset_points` and NumPy's `depth_cam`, with the same results); the best
+    # one's residuals (`offset_residuals`): one compiled call (`offset_choice`, decision 0087).
+    status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside = _k.offset_choice(
+        rel, ln, xy_cam, model.xy_junction, int(model.index_min), int(model.index_max), float(model.fx_proj),
+        int(options.candidate_refs), float(options.candidate_band_px), float(options.min_inside_fraction), float(cap2),
+        model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm))
     if status != 0:
         if status >= 2:
             stats["out_of_pattern"] += 1
         return _Choice("no_admissible_offset")
-    # Walk the ranking (its 16 best) until two offsets put the surface inside the working volume: one
-    # compiled call (`_label_kernels.offset_depth_walk`, decision 0078; formerly chunks of 4 through
-    # `offset_points` and NumPy's `depth_cam`, with the same results).
-    top = ranked[: min(len(ranked), 16)]
-    pass_k, n_fail, inside = _k.offset_depth_walk(
-        rel, off, top, xy_cam, model.xy_junction, int(model.index_min), int(model.index_max), model.procam.R_proj_cam,
-        model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm), float(options.min_inside_fraction))
     stats["out_of_depth_range"] += int(n_fail)
-    if pass_k[0] < 0:
+    if not ok:
         return _Choice("no_admissible_offset")
-    best = int(top[pass_k[0]])
-    s1 = float(score[best])
-    s2 = float(score[top[pass_k[1]]]) if pass_k[1] >= 0 else cap2
+    s1 = float(s1)
+    s2 = float(s2)
     sigma2 = max(s1, options.noise_floor_px**2)
-    rms = (float(np.sqrt(s1)), float(np.sqrt(s2)))
-    lab = rel + off[best]
-    r_full = _k.offset_residuals(rel, int(off[best, 0]), int(off[best, 1]), ln, model.xy_junction, int(model.index_min),
-                                 int(model.index_max), float(model.fx_proj))
+    rms = (math.sqrt(s1), math.sqrt(s2))
+    lab = rel + off_best
     if n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2 or s2 < options.min_rms_ratio**2 * sigma2:
         # A component that mixes two surfaces (a bad edge) looks ambiguous as a whole: each offset fits one
         # part. Judge the best offset on its own inliers; if it wins there, the rest is split off later.
