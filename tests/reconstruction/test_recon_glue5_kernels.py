@@ -330,3 +330,66 @@ def test_check_piece_kernels_equal_the_numpy_steps():
     bad = np.zeros(n_p, bool)
     bad[piece[pos[out]]] = True
     assert _same(g1, good & ~bad[cand]) and (g1 != good).any()
+
+
+# --- label_epipolar's offset choice ---------------------------------------------------------------------------
+
+
+def _offset_choice_reference(model, rel, ln, xy_cam, refs, band, frac, cap2, z_min, z_max):
+    """_choose_offset's three kernel calls as before 0087."""
+    status, off, score, ranked, n_eff = lk.offset_scores(rel, ln, model.xy_junction, int(model.index_min),
+                                                         int(model.index_max), float(model.fx_proj), refs, band, frac, cap2)
+    if status != 0:
+        return status, 0, False, None
+    top = ranked[: min(len(ranked), 16)]
+    pass_k, n_fail, inside = lk.offset_depth_walk(rel, off, top, xy_cam, model.xy_junction, int(model.index_min),
+                                                  int(model.index_max), model.procam.R_proj_cam, model.procam.t_proj_cam,
+                                                  z_min, z_max, frac)
+    if pass_k[0] < 0:
+        return status, n_fail, False, None
+    best = int(top[pass_k[0]])
+    s2 = float(score[top[pass_k[1]]]) if pass_k[1] >= 0 else cap2
+    r_full = lk.offset_residuals(rel, int(off[best, 0]), int(off[best, 1]), ln, model.xy_junction, int(model.index_min),
+                                 int(model.index_max), float(model.fx_proj))
+    return status, n_fail, True, (float(score[best]), s2, n_eff, off[best], r_full, inside)
+
+
+def test_offset_choice_equals_the_three_calls():
+    from calibration.models import Intrinsics, ProCam, look_at
+    from reconstruction.geometry import epipolar_lines
+    from reconstruction.patterns import GridPattern
+    from reconstruction.rigmodel import rig_model
+
+    cam = Intrinsics(640, 480, np.array([[900.0, 0, 319.5], [0, 900.0, 239.5], [0, 0, 1]]), np.zeros(5))
+    prj = Intrinsics(800, 600, np.array([[1000.0, 0, 399.5], [0, 1000.0, 299.5], [0, 0, 1]]), np.zeros(5))
+    t = np.array([180.0, 60.0, 40.0])
+    model = rig_model(ProCam(cam, prj, look_at(t, np.array([0, 0, 800.0])), t), GridPattern(), (500.0, 1200.0))
+    rng = np.random.default_rng(23)
+    outcomes = set()
+    for trial in range(200):
+        m = int(rng.integers(1, 40))
+        # junctions of a plane: projector junctions (i, j) + a random offset, seen by the camera
+        ij = rng.integers(model.index_min + 3, model.index_max - 3, 2) + rng.integers(-3, 4, (m, 2))
+        xy_p = model.junction_xy(ij[:, 0], ij[:, 1])
+        z = rng.uniform(600, 1100)
+        p_proj = np.column_stack([xy_p * z, np.full(m, z)])
+        p_cam = (p_proj - t) @ model.procam.R_proj_cam  # R^T (p − t)
+        xy_cam = p_cam[:, :2] / p_cam[:, 2:3] + rng.normal(0, 2e-4, (m, 2))
+        ln = epipolar_lines(model.procam, xy_cam)
+        rel = (ij - ij[0]).astype(np.int64)
+        if trial % 10 == 9:  # a component wider than the pattern: no admissible offset (status ≠ 0)
+            rel[-1] += 4 * (model.index_max - model.index_min)
+            rel[: m // 2] -= 4 * (model.index_max - model.index_min)
+        z_min, z_max = (500.0, 1200.0) if trial % 3 else tuple(sorted(rng.uniform(300, 1500, 2)))
+        frac = float(rng.choice([0.5, 0.9]))
+        want = _offset_choice_reference(model, rel, ln, xy_cam, 4, 1.5, frac, 9.0, z_min, z_max)
+        got = lk.offset_choice(rel, ln, xy_cam, model.xy_junction, int(model.index_min), int(model.index_max),
+                               float(model.fx_proj), 4, 1.5, frac, 9.0, model.procam.R_proj_cam, model.procam.t_proj_cam,
+                               z_min, z_max)
+        assert got[0] == want[0] and got[1] == want[1] and got[2] == want[2]
+        if want[2]:
+            s1, s2, n_eff, off_best, r_full, inside = want[3]
+            assert got[3] == s1 and got[4] == s2 and got[5] == n_eff
+            assert _same(got[6], off_best.astype(np.int64)) and _same(got[7], r_full) and _same(got[8], inside)
+        outcomes.add((int(want[0] != 0), bool(want[2]), bool(want[2]) and want[3][1] == 9.0))
+    assert {(0, True, False), (0, True, True), (0, False, False), (1, False, False)} <= outcomes, outcomes
