@@ -2451,3 +2451,67 @@ def offset_choice(rel, ln, xy_cam, xy_junction, index_min, index_max, fx, n_refs
     off_best[1] = off[best, 1]
     r_full = offset_residuals(rel, off_best[0], off_best[1], ln, xy_junction, index_min, index_max, fx)
     return status, n_fail, True, s1, s2, n_eff, off_best, r_full, inside
+
+
+@njit
+def round_state_gather(todo, n_pieces, bd_all, bk_all, k_all, j_all):
+    """A crossing round's kept search results for pieces todo (nt,): rows todo then todo + n_pieces of the
+    per-end state (bd, bk, k_end, jid_end), as (2·nt,) copies (formerly four fancy gathers)."""
+    nt = todo.shape[0]
+    bd = np.empty(2 * nt, bd_all.dtype)
+    bk = np.empty(2 * nt, bk_all.dtype)
+    ke = np.empty(2 * nt, k_all.dtype)
+    je = np.empty(2 * nt, j_all.dtype)
+    for h in range(2):
+        for i in range(nt):
+            r = todo[i] + h * n_pieces
+            k = h * nt + i
+            bd[k] = bd_all[r]
+            bk[k] = bk_all[r]
+            ke[k] = k_all[r]
+            je[k] = j_all[r]
+    return bd, bk, ke, je
+
+
+@njit
+def round_state_scatter(todo, n_pieces, bd, bk, ke, je, bd_all, bk_all, k_all, j_all):
+    """The inverse of `round_state_gather`: the round's results written back at rows todo, todo + n_pieces."""
+    nt = todo.shape[0]
+    for h in range(2):
+        for i in range(nt):
+            r = todo[i] + h * n_pieces
+            k = h * nt + i
+            bd_all[r] = bd[k]
+            bk_all[r] = bk[k]
+            k_all[r] = ke[k]
+            j_all[r] = je[k]
+
+
+@njit
+def redo_rows(changed, e, te, sign, bk, k_end, jid_end, unlabelled):
+    """The ends whose nearest candidate changed (`crossing_nearest_update`'s flags): redo (R,) intp, their rows
+    of e, te, sign and bk for `crossing_test`, and their line and junction reset (k_end, jid_end in place)."""
+    n = changed.shape[0]
+    R = 0
+    for i in range(n):
+        R += changed[i] != 0
+    redo = np.empty(R, np.intp)
+    e_r = np.empty((R, 2), e.dtype)
+    te_r = np.empty((R, 2), te.dtype)
+    s_r = np.empty(R, sign.dtype)
+    b_r = np.empty(R, bk.dtype)
+    k = 0
+    for i in range(n):
+        if changed[i] == 0:
+            continue
+        redo[k] = i
+        e_r[k, 0] = e[i, 0]
+        e_r[k, 1] = e[i, 1]
+        te_r[k, 0] = te[i, 0]
+        te_r[k, 1] = te[i, 1]
+        s_r[k] = sign[i]
+        b_r[k] = bk[i]
+        k_end[i] = unlabelled
+        jid_end[i] = -1
+        k += 1
+    return redo, e_r, te_r, s_r, b_r

@@ -669,25 +669,19 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
         nt = len(todo)
         if nt == 0:
             break
-        keys = np.concatenate([todo, todo + n_pieces])
-        first_search = st["seen"] is None
-        if first_search:
+        # (the per-end state's gathers and scatters at rows todo, todo + n_pieces, and the rows to search
+        # again, compiled: decision 0087)
+        if st["seen"] is None:  # every end (redo = 0 .. 2·nt − 1)
             bd, bk = _k.crossing_nearest(e, fe, q, fam, index, True, float(radius_px), *grid)
             redo = np.arange(2 * nt)
             k_end = np.full(2 * nt, UNLABELLED, np.int64)
             jid_end = np.full(2 * nt, -1, np.int64)
-        else:
-            bd = st["bd"][keys]
-            bk = st["bk"][keys]
-            redo = np.flatnonzero(_k.crossing_nearest_update(e, fe, q, fam, grid[7], new_s, float(radius_px), bd, bk))
-            k_end = st["k_end"][keys]
-            jid_end = st["jid_end"][keys]
-            k_end[redo] = UNLABELLED
-            jid_end[redo] = -1
-        if first_search:  # every end (redo = 0 .. 2·nt − 1)
             o, c = _k.crossing_test(e, te, sign, bk, q, sid, tangent, float(radius_px), sin_min)
         else:
-            o, c = _k.crossing_test(e[redo], te[redo], sign[redo], bk[redo], q, sid, tangent, float(radius_px), sin_min)
+            bd, bk, k_end, jid_end = _k.round_state_gather(todo, n_pieces, st["bd"], st["bk"], st["k_end"], st["jid_end"])
+            changed = _k.crossing_nearest_update(e, fe, q, fam, grid[7], new_s, float(radius_px), bd, bk)
+            redo, e_r, te_r, sign_r, bk_r = _k.redo_rows(changed, e, te, sign, bk, k_end, jid_end, UNLABELLED)
+            o, c = _k.crossing_test(e_r, te_r, sign_r, bk_r, q, sid, tangent, float(radius_px), sin_min)
         # the ends with a crossing (their labelled sample's line m), checked on light sheet m: the nearest line
         # of the piece's family, its distance and the depth; the passing ones give their end that line and
         # junction (gathers and writes compiled, decision 0087)
@@ -696,10 +690,7 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
             _, z, kk, res = model.sheet_check(c_sel, f_other, m)
             _k.crossing_hits_write(sel, o_sel, kk, res, z, float(options.cross_residual_px), float(depth_range_mm[0]),
                                    float(depth_range_mm[1]), k_end, jid_end, seed_jid, sid)
-        st["bd"][keys] = bd
-        st["bk"][keys] = bk
-        st["k_end"][keys] = k_end
-        st["jid_end"][keys] = jid_end
+        _k.round_state_scatter(todo, n_pieces, bd, bk, k_end, jid_end, st["bd"], st["bk"], st["k_end"], st["jid_end"])
         st["seen"] = labelled_now
         st["todo"] = todo
         # the pieces' ends next to the crossings are left out: the other line's profile pulls the ridge
