@@ -393,3 +393,34 @@ def test_offset_choice_equals_the_three_calls():
             assert _same(got[6], off_best.astype(np.int64)) and _same(got[7], r_full) and _same(got[8], inside)
         outcomes.add((int(want[0] != 0), bool(want[2]), bool(want[2]) and want[3][1] == 9.0))
     assert {(0, True, False), (0, True, True), (0, False, False), (1, False, False)} <= outcomes, outcomes
+
+
+def test_round_state_kernels_equal_the_fancy_indexing():
+    rng = np.random.default_rng(14)
+    n_pieces, nt = 300, 120
+    todo = np.sort(rng.permutation(n_pieces)[:nt]).astype(np.intp)
+    bd_all = rng.uniform(0, 50, 2 * n_pieces)
+    bd_all[::7] = np.inf
+    bk_all = rng.integers(-1, 900, 2 * n_pieces).astype(np.intp)
+    k_all = rng.integers(-3, 40, 2 * n_pieces).astype(np.int64)
+    j_all = rng.integers(-1, 500, 2 * n_pieces).astype(np.int64)
+    keys = np.concatenate([todo, todo + n_pieces])
+    bd, bk, ke, je = lk.round_state_gather(todo, n_pieces, bd_all, bk_all, k_all, j_all)
+    assert _same(bd, bd_all[keys]) and _same(bk, bk_all[keys]) and _same(ke, k_all[keys]) and _same(je, j_all[keys])
+    # the round changes some ends, then writes back
+    changed = rng.random(2 * nt) < 0.3
+    e = rng.uniform(0, 900, (2 * nt, 2))
+    te = rng.normal(size=(2 * nt, 2))
+    sign = np.where(rng.random(2 * nt) < 0.5, -1.0, 1.0)
+    k_w, j_w = ke.copy(), je.copy()
+    redo, e_r, te_r, s_r, b_r = lk.redo_rows(changed, e, te, sign, bk, ke, je, UNL)
+    r = np.flatnonzero(changed)
+    k_w[r] = UNL
+    j_w[r] = -1
+    assert _same(redo, r.astype(np.intp)) and _same(e_r, e[r]) and _same(te_r, te[r]) and _same(s_r, sign[r]) and _same(b_r, bk[r])
+    assert _same(ke, k_w) and _same(je, j_w) and len(r) > 10
+    all_w = [a.copy() for a in (bd_all, bk_all, k_all, j_all)]
+    for a, v in zip(all_w, (bd, bk, ke, je)):
+        a[keys] = v
+    lk.round_state_scatter(todo, n_pieces, bd, bk, ke, je, bd_all, bk_all, k_all, j_all)
+    assert all(_same(a, w) for a, w in zip((bd_all, bk_all, k_all, j_all), all_w))
