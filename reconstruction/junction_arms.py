@@ -211,14 +211,45 @@ def retry_trimmed_arms(fits: tuple, arm_of: np.ndarray, seg_args: tuple, d_trim:
     return n_take + _refit(fits, arm_of, cand, kept, dropped, sample_args, seeds_xy, rms_tol, sin_tol)
 
 
+@njit
+def _refit_inputs(cand, kept, arm_of, fam, qx, qy, nx, ny, sx, sy, ns):
+    """`junction_fits`' inputs for the candidates cand refitted on samples kept: the arm of each kept sample
+    renumbered as its candidate's position in cand (int64, −1 for others), its family, position and normal,
+    and the candidates' positions (the gathers `compact[arm_of[kept]]`, `fam[kept]`, ..., `sx[cand]`)."""
+    compact = np.full(ns, -1, np.int64)
+    for c in range(cand.shape[0]):
+        compact[cand[c]] = c
+    n = kept.shape[0]
+    arm = np.empty(n, np.int64)
+    f = np.empty(n, fam.dtype)
+    x = np.empty(n, qx.dtype)
+    y = np.empty(n, qy.dtype)
+    ax = np.empty(n, nx.dtype)
+    ay = np.empty(n, ny.dtype)
+    for i in range(n):
+        s = kept[i]
+        arm[i] = compact[arm_of[s]]
+        f[i] = fam[s]
+        x[i] = qx[s]
+        y[i] = qy[s]
+        ax[i] = nx[s]
+        ay[i] = ny[s]
+    nc = cand.shape[0]
+    cx = np.empty(nc, sx.dtype)
+    cy = np.empty(nc, sy.dtype)
+    for c in range(nc):
+        cx[c] = sx[cand[c]]
+        cy[c] = sy[cand[c]]
+    return arm, f, x, y, ax, ay, cx, cy
+
+
 def _refit(fits: tuple, arm_of: np.ndarray, cand: np.ndarray, kept: np.ndarray, dropped: np.ndarray, sample_args: tuple,
            seeds_xy: tuple, rms_tol: float, sin_tol: float) -> int:
     """Fit candidates cand on their arm samples `kept` only; merge where straight and usable (in place)."""
     from reconstruction._extract_kernels import junction_fits
 
-    compact = np.full(len(fits[2]) // 2, -1, np.int64)
-    compact[cand] = np.arange(len(cand))
-    fam, qx, qy, nx, ny = sample_args
-    fits_t = junction_fits(compact[arm_of[kept]], fam[kept], qx[kept], qy[kept], nx[kept], ny[kept],
-                           seeds_xy[0][cand], seeds_xy[1][cand], len(cand))
+    # the kept samples' arms renumbered among cand, their samples' arrays and cand's positions: one
+    # compiled gather (decision 0087)
+    fits_in = _refit_inputs(cand, kept, arm_of, *sample_args, seeds_xy[0], seeds_xy[1], len(fits[2]) // 2)
+    fits_t = junction_fits(*fits_in, len(cand))
     return int(_merge(fits, fits_t, cand, arm_of, dropped, rms_tol, sin_tol))

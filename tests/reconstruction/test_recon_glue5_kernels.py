@@ -424,3 +424,22 @@ def test_round_state_kernels_equal_the_fancy_indexing():
         a[keys] = v
     lk.round_state_scatter(todo, n_pieces, bd, bk, ke, je, bd_all, bk_all, k_all, j_all)
     assert all(_same(a, w) for a, w in zip((bd_all, bk_all, k_all, j_all), all_w))
+
+
+def test_refit_inputs_equal_the_gathers():
+    from reconstruction.junction_arms import _refit_inputs
+
+    rng = np.random.default_rng(15)
+    P, ns = 3000, 200
+    cand = np.sort(rng.permutation(ns)[:40]).astype(np.int64)
+    arm_of = rng.integers(-1, ns, P).astype(np.intp)
+    on_cand = np.flatnonzero(np.isin(arm_of, cand))
+    kept = np.sort(rng.permutation(on_cand)[: len(on_cand) // 2]).astype(np.int64)
+    fam = rng.integers(1, 3, P).astype(np.int8)
+    qx, qy, nx, ny = (rng.normal(size=P).astype(np.float32) for _ in range(4))
+    sx, sy = rng.uniform(0, 900, ns), rng.uniform(0, 900, ns)
+    compact = np.full(ns, -1, np.int64)
+    compact[cand] = np.arange(len(cand))
+    want = (compact[arm_of[kept]], fam[kept], qx[kept], qy[kept], nx[kept], ny[kept], sx[cand], sy[cand])
+    got = _refit_inputs(cand, kept, arm_of, fam, qx, qy, nx, ny, sx, sy, ns)
+    assert all(_same(g, w) for g, w in zip(got, want)) and len(kept) > 50
