@@ -220,3 +220,47 @@ def check_depth(good, cand, pos, piece, z, z_min, z_max, n_p):
     for i in range(cand.shape[0]):
         if bad[cand[i]]:
             good[i] = False
+
+
+@njit
+def linked_unlabelled(n_p, a, b, labelled, k_of):
+    """continue_lines' pieces to check: linked (an end of a link a, b), unlabelled, with a chain index (finite
+    k_of), in increasing order (= np.flatnonzero(linked & ~labelled & np.isfinite(k_of)))."""
+    linked = np.zeros(n_p, np.bool_)
+    for i in range(a.shape[0]):
+        linked[a[i]] = True
+        linked[b[i]] = True
+    out = np.empty(n_p, np.intp)
+    m = 0
+    for p in range(n_p):
+        if linked[p] and not labelled[p] and math.isfinite(k_of[p]):
+            out[m] = p
+            m += 1
+    return out[:m]
+
+
+@njit
+def checked_pieces(labelled, cand, good):
+    """keep = labelled plus the pieces cand[good] (n_p,), new = the pieces cand[good] only, and the number of
+    pieces in cand that failed."""
+    keep = labelled.copy()
+    new = np.zeros(labelled.shape[0], np.bool_)
+    n_failed = 0
+    for i in range(cand.shape[0]):
+        if good[i]:
+            keep[cand[i]] = True
+            new[cand[i]] = True
+        else:
+            n_failed += 1
+    return keep, new, n_failed
+
+
+@njit
+def with_index(new, k_of):
+    """new &= isfinite(k_of) in place; returns whether any piece is left."""
+    anyp = False
+    for p in range(new.shape[0]):
+        if new[p] and not math.isfinite(k_of[p]):
+            new[p] = False
+        anyp |= new[p]
+    return anyp

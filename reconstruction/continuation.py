@@ -43,7 +43,8 @@ import numpy as np
 
 from reconstruction._continuation_kernels import chain_values, crossing_in_gap, piece_ends, samples_of, write_pieces
 from reconstruction._label_kernels import crossing_hits_traces, sample_grid
-from reconstruction._link_kernels import check_depth, check_ends, check_hits, check_samples, check_verdicts, facing_links_mid
+from reconstruction._link_kernels import (check_depth, check_ends, check_hits, check_samples, check_verdicts, checked_pieces,
+                                          facing_links_mid, linked_unlabelled, with_index)
 from reconstruction._label_kernels import project_nearest_line as project_nearest_line_kernel
 from reconstruction.rigmodel import RigModel
 
@@ -160,25 +161,19 @@ def continue_lines(
     if len(a) == 0:
         return stats
 
-    # 2. check every unlabelled linked piece against its chain's index
-    linked = np.zeros(n_p, bool)
-    linked[a] = True
-    linked[b] = True
+    # 2. check every unlabelled linked piece against its chain's index (the masks around the kernels
+    # compiled, decision 0087: `_link_kernels.linked_unlabelled`, `checked_pieces`, `with_index`)
     k_of, _ = chain_values(n_p, a, b, np.ones(n_p, np.bool_), labelled, val, jsrc)
-    cand = np.flatnonzero(linked & ~labelled & np.isfinite(k_of))
+    cand = linked_unlabelled(n_p, a, b, labelled, k_of)
     stats["pieces_checked"] = int(len(cand))
     if len(cand) == 0:
         return stats
     good = _check_pieces(cand, k_of, q, fam, sid, piece, tangent, e, u, f_e, model, depth_range_mm, radius, tol_px, grid)
-    stats["pieces_failed"] = int((~good).sum())
     # 3. spread through the checked pieces only
-    keep = labelled.copy()
-    keep[cand[good]] = True
+    keep, new, n_failed = checked_pieces(labelled, cand, good)
+    stats["pieces_failed"] = int(n_failed)
     k_of, src_of = chain_values(n_p, a, b, keep, labelled, val, jsrc)
-    new = np.zeros(n_p, bool)
-    new[cand[good]] = True
-    new &= np.isfinite(k_of)
-    if not new.any():
+    if not with_index(new, k_of):
         return stats
     # the seed junction of a labelled piece of the same chain
     stats["samples"] = int(write_pieces(sid, piece, ts, new, k_of, src_of, float(trim_px), index, seed_jid))

@@ -443,3 +443,31 @@ def test_refit_inputs_equal_the_gathers():
     want = (compact[arm_of[kept]], fam[kept], qx[kept], qy[kept], nx[kept], ny[kept], sx[cand], sy[cand])
     got = _refit_inputs(cand, kept, arm_of, fam, qx, qy, nx, ny, sx, sy, ns)
     assert all(_same(g, w) for g, w in zip(got, want)) and len(kept) > 50
+
+
+def test_continuation_masks_equal_the_numpy_steps():
+    from reconstruction import _link_kernels as kk
+
+    rng = np.random.default_rng(16)
+    n_p = 400
+    a = rng.integers(0, n_p, 150).astype(np.intp)
+    b = rng.integers(0, n_p, 150).astype(np.intp)
+    labelled = rng.random(n_p) < 0.3
+    k_of = np.where(rng.random(n_p) < 0.8, rng.integers(0, 30, n_p).astype(np.float64), np.nan)
+    linked = np.zeros(n_p, bool)
+    linked[a] = True
+    linked[b] = True
+    cand = kk.linked_unlabelled(n_p, a, b, labelled, k_of)
+    assert _same(cand, np.flatnonzero(linked & ~labelled & np.isfinite(k_of))) and len(cand) > 20
+    good = rng.random(len(cand)) < 0.6
+    keep, new, n_failed = kk.checked_pieces(labelled, cand, good)
+    keep_w = labelled.copy()
+    keep_w[cand[good]] = True
+    new_w = np.zeros(n_p, bool)
+    new_w[cand[good]] = True
+    assert _same(keep, keep_w) and _same(new, new_w) and n_failed == int((~good).sum())
+    k2 = np.where(rng.random(n_p) < 0.7, k_of, np.nan)
+    left = kk.with_index(new, k2)
+    new_w &= np.isfinite(k2)
+    assert _same(new, new_w) and left == bool(new_w.any()) and left
+    assert not kk.with_index(np.zeros(n_p, bool), k2)
