@@ -209,7 +209,9 @@ def sigma_for(model: RigModel, options: ExtractOptions) -> float:
 @lru_cache(maxsize=16)
 def _gauss_kernel(sigma: float) -> np.ndarray:
     r = max(1, int(np.ceil(3.5 * sigma)))
-    return cv2.getGaussianKernel(2 * r + 1, sigma, cv2.CV_32F)
+    k = cv2.getGaussianKernel(2 * r + 1, sigma, cv2.CV_32F)
+    k.setflags(write=False)  # cached and shared between threads (decision 0087)
+    return k
 
 
 _workspace = threading.local()  # per thread: the full-resolution working image, reused between frames

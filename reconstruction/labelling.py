@@ -615,7 +615,10 @@ def _disk_offsets(rad: int) -> tuple[np.ndarray, np.ndarray]:
     """The (row, column) offsets (intp) of the pixels of cv2's elliptic structuring element of radius rad (the
     mixing zone's disk), in np.nonzero's order; cached (decision 0087)."""
     dr, dc = np.nonzero(cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rad + 1, 2 * rad + 1)))
-    return (dr - rad).astype(np.intp), (dc - rad).astype(np.intp)
+    dr, dc = (dr - rad).astype(np.intp), (dc - rad).astype(np.intp)
+    dr.setflags(write=False)  # cached and shared between threads
+    dc.setflags(write=False)
+    return dr, dc
 
 
 _SIN_20 = float(np.sin(np.deg2rad(20)))  # the crossing searches' smallest crossing angle
