@@ -262,6 +262,20 @@ def _laplacian_noise_gain(sigma: float, scale: int) -> float:
 
 _PAD = 16  # margin (cells) of the lookup grids
 
+_dir_f32: tuple = (None, None)  # (model.dir_cam, its float32 (gh·gw, 4) copy): the last rig's
+
+
+def _dir_cam_f32(model: RigModel) -> np.ndarray:
+    """model.dir_cam as the families kernel reads it, float32 (gh·gw, 4), converted once per rig (the model's
+    table is read-only; decision 0087). The pair is replaced as one tuple, so threads never mix two rigs."""
+    global _dir_f32
+    src, conv = _dir_f32
+    if src is not model.dir_cam:
+        conv = np.ascontiguousarray(model.dir_cam.reshape(-1, 4), np.float32)
+        conv.setflags(write=False)
+        _dir_f32 = (model.dir_cam, conv)
+    return conv
+
 
 def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions = ExtractOptions()) -> GridObservation:
     """Find line samples, families, junctions and the segment graph in one camera image (see module doc).
@@ -306,7 +320,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     u, v, ox, oy, nx, ny, strength, fam, qx32, qy32, xu, xv, xs = _k.albedo_and_families(
         u, v, ox, oy, nx, ny, strength, xu, xv, xs, Hw, Ww,
         np.float32(options.min_relative_strength), np.float32(options.crossing_strength),
-        np.ascontiguousarray(model.dir_cam.reshape(-1, 4), np.float32), gh_d, gw_d, float(model.cell_px / scale),
+        _dir_cam_f32(model), gh_d, gw_d, float(model.cell_px / scale),
         np.float32(options.family_margin),
     )  # fmt: skip
     # float32 sample coordinates (working px), one array per coordinate for the hot loops
@@ -385,8 +399,6 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     stats["segments"] = int(S)
 
     # --- 5b. segment ends: the crossing each end reaches ---------------------------------------------------
-    seg_seed = np.full((S, 2), -1, np.int64)
-    t_points = np.zeros((0, 2))
     sproj, smin, smax = _k.segment_extents(sidx, sg, qx32, qy32, seg_cen, seg_dir, S)
     if S and ns:
         # walk from each end outwards; the first candidate within `r_side` of the walk is the one it reaches
@@ -399,15 +411,20 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
             seed_grid, remap_seed, inv_cs, _PAD, seeds_x, seeds_y, seeds_x32, seeds_y32, np.float32(r_side), r_att + r_side, _k.row_starts(v, Hw), u, core,
         )  # fmt: skip
         t_points = q[t_ids]
+    else:
+        seg_seed = np.full((S, 2), -1, np.int64)
+        t_points = np.zeros((0, 2))
 
     # --- 4b. junctions: line fits on the arms (the segments reaching a crossing), intersected -------------
-    arm_of = np.full(P, -1, np.intp)
     if S and ns:
         arm_of = _k.arms(sidx, sg, sproj, smin, smax, seg_seed, qx32, qy32, seeds_x32, seeds_y32, np.float32(R), P)
-    valid = np.zeros(ns, bool)
-    qj = np.full((ns, 2), np.nan)
-    rms_j = np.zeros((ns, 2))
-    if ns:
+    else:
+        arm_of = np.full(P, -1, np.intp)
+    if not ns:
+        valid = np.zeros(ns, bool)
+        qj = np.full((ns, 2), np.nan)
+        rms_j = np.zeros((ns, 2))
+    else:
         cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin = _k.junction_fits(arm_of, fam, qx32, qy32, nx32, ny32, seeds_x, seeds_y, ns)
         if options.arm_free_end_trim and options.free_end_trim_sigma > 0:
             # bent arms: fitted again without the samples next to a free segment end, where a silhouette or
