@@ -26,7 +26,7 @@ top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055â
    within two smoothing scales of an end that reaches no crossing (a line cut by a silhouette or shadow)
    leave their segment: the cut bends the ridge there (decision 0059).
 
-Speed (decisions 0062, 0063, 0069, 0079): the smoothing is one OpenCV call into a per-thread working image;
+Speed (decisions 0062, 0063, 0069, 0079, 0087): the smoothing is one OpenCV call into a per-thread working image;
 every per-pixel and per-sample step is a numba kernel (`reconstruction/_extract_kernels.py`) â€” one walk
 over the image for the Laplacian test (a vectorised loop per row, candidates collected branch-free), then
 the Hessian, eigenvector and Steger offset of the candidates in blocks that LLVM vectorises (row-major, so
@@ -34,8 +34,8 @@ sample order is the scan order), one branch-free pass for the albedo test and th
 nearest-candidate lookups on coarse grids, linking with 4 probes per sample on a window of sample-id rows
 and a union-find, the line fits, end walks, arms, trims and chord tests as loops over samples or segments,
 the per-junction tests and the duplicates in one pass each (decision 0079); the noise estimate of an
-8-bit image is a histogram kernel. The edges' index steps (the model's Jacobian; hundreds of elements)
-stay NumPy. The kernels compute what the NumPy
+8-bit image is a histogram kernel; the edges' index steps, the kept candidates and junctions are one pass each
+(decision 0087), per-frame constants cached. The kernels compute what the NumPy
 passes they replaced did, in the same float widths and order. Times per stage: see
 benchmarks/results/bench_extraction.md.
 """

@@ -219,9 +219,9 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     junctions left out by reason (LEFT_OUT_REASONS); stats["components_split"] the components cut at
     outlier junctions.
 
-    Speed (decision 0067): the graph walk (`clean_edges`, `_propagate`) and each component's candidate
-    offsets and scores are compiled passes; per component NumPy only triangulates the best offsets (four
-    at a time) and applies the tests.
+    Speed (decisions 0067, 0078, 0087): the graph walk (`clean_edges`, `_propagate`), the components' groups,
+    each component's candidate offsets, scores, depth walk and residuals (`offset_choice`: one call) and the
+    inliers' writes are compiled; per component Python applies the ambiguity and split tests.
     """
     M = len(obs.q_junction)
     labels = np.full((M, 2), UNLABELLED, np.int64)
