@@ -31,10 +31,12 @@ The paper labeller's output is left alone (the pipeline calls this only for the 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from reconstruction._jit import njit
 from reconstruction.continuation import crossing_gap_px
 from reconstruction.rigmodel import UNLABELLED, RigModel
 
@@ -44,10 +46,11 @@ class CrossingFillOptions:
     """enabled: add the points (else nothing is added). min_gap_cells: a gap between consecutive labelled
     samples of one line is at least this many sampling steps. anchor: samples fitted on each side.
     max_turn_deg: the two sides' directions may differ by at most this. lateral_px: the two tangents must
-    meet at the gap's middle within this (camera px per sampling step). residual_px: the crossing,
-    triangulated on the line's light sheet, must lie this close to a line of the other family (projector
-    px). mix_sigma, trim_sigma, min_angle_deg: the longest gap a crossing leaves (as the label stage's
-    TraceOptions: mixing zone, trims, crossings down to this angle)."""
+    meet at the gap's middle within this, and each side's anchors lie on their line within this (camera px
+    per sampling step). residual_px: the crossing, triangulated on the line's light sheet, must lie this
+    close to a line of the other family (projector px). mix_sigma, trim_sigma, min_angle_deg: the longest
+    gap a crossing leaves (as the label stage's TraceOptions: mixing zone, trims, crossings down to this
+    angle in the image)."""
 
     enabled: bool = True
     min_gap_cells: float = 1.6
@@ -98,211 +101,348 @@ def fill_crossings(
     (`SampleLabels.q`, the observation's family, `SampleLabels.index`, `.junction`). q_samples (S, 2),
     family_samples (S,): every extracted sample (the other family's run through a gap). q_junction (M, 2),
     junction_labels (M, 2) (UNLABELLED where none). sigma_px: the extraction's smoothing; cell_px: its
-    sampling step (1, or 2 on a half-resolution image). Camera px throughout."""
+    sampling step (1, or 2 on a half-resolution image). Camera px throughout. Compiled (`_k_gaps`)."""
     stats = {"crossing_gaps": 0, "crossing_gaps_filled": 0, "samples_crossing_filled": 0}
     if not options.enabled:
         return _empty(stats)
-    q = np.asarray(q, np.float64).reshape(-1, 2)
+    q = np.ascontiguousarray(q, np.float64).reshape(-1, 2)
     fam = np.asarray(family).astype(np.intp).reshape(-1)
     idx = np.asarray(index, np.float64).reshape(-1)
-    ok = np.isfinite(idx) & np.isfinite(q).all(axis=1) & ((fam == 1) | (fam == 2))
-    sel = np.flatnonzero(ok)
+    sel = np.flatnonzero(np.isfinite(idx) & np.isfinite(q[:, 0]) & np.isfinite(q[:, 1]) & ((fam == 1) | (fam == 2)))
     if len(sel) < 2 * options.anchor + 2:
         return _empty(stats)
-    ql, fl, kl = q[sel], fam[sel], idx[sel].astype(np.int64)
-    jl = np.asarray(junction, np.int64).reshape(-1)[sel]
-    # 1. order each line's labelled samples along its family's direction (the rig's prediction)
-    t = np.empty(len(sel))
-    for f in (1, 2):
-        m = fl == f
-        t[m] = ql[m] @ _family_direction(model, f)
-    order = np.lexsort((t, kl, fl))
-    ql, fl, kl, jl, t = ql[order], fl[order], kl[order], jl[order], t[order]
-    same = (fl[1:] == fl[:-1]) & (kl[1:] == kl[:-1])
-    step = np.hypot(*(ql[1:] - ql[:-1]).T)
+    # 1. each line's labelled samples in order along its family's direction (the rig's prediction)
+    fl = fam[sel]
+    d1, d2 = _family_directions(model)
+    qsel = q[sel]
+    t = np.where(fl == 1, qsel @ d1, qsel @ d2)
+    # one float key (line, then position): lines are integers, positions span less than `span`
+    span = 2.0 * (np.abs(t).max() + 1.0)
+    ksel = idx[sel]
+    key = (fl * (ksel.max() - ksel.min() + 2.0) + (ksel - ksel.min())) * span + t
+    order = sel[np.argsort(key)]
+    lab = np.ascontiguousarray(junction_labels, np.int64).reshape(-1, 2)
+    qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
+    jsel = np.flatnonzero(lab[:, 0] != UNLABELLED)
     gap_max = cell_px + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.trim_sigma,
                                         min_angle_deg=options.min_angle_deg)
-    a = np.flatnonzero(same & (step > options.min_gap_cells * cell_px) & (step <= gap_max))
-    stats["crossing_gaps"] = int(len(a))
-    if len(a) == 0:
+    qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
+    fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
+    n_gaps, gaps, acc, c_q = _k_gaps(
+        q, fam, idx, order.astype(np.intp), qj, lab, jsel.astype(np.intp), qs, fs, float(cell_px), float(sigma_px),
+        float(options.min_gap_cells * cell_px), float(gap_max), int(options.anchor), float(np.deg2rad(options.max_turn_deg)),
+        float(options.lateral_px * cell_px))
+    stats["crossing_gaps"] = int(n_gaps)
+    G = len(acc)
+    if G == 0:
         return _empty(stats)
-    n = len(ql)
-    A = options.anchor
-    # 2. each side's anchors: A consecutive samples of the same line, each step at most 2 cells
-    offs_a = -np.arange(A)  # a, a-1, ...
-    offs_b = 1 + np.arange(A)  # b = a+1, a+2, ...
-    ia = a[:, None] + offs_a[None, :]
-    ib = a[:, None] + offs_b[None, :]
-    good = (ia[:, -1] >= 0) & (ib[:, -1] < n)
-    a, ia, ib = a[good], ia[good], ib[good]
-    if len(a) == 0:
-        return _empty(stats)
-    key_ok = np.ones(len(a), bool)
-    for w in (ia, ib):
-        key_ok &= ((fl[w] == fl[a][:, None]) & (kl[w] == kl[a][:, None])).all(axis=1)
-        seg = np.hypot(*(ql[w[:, 1:]] - ql[w[:, :-1]]).transpose(2, 0, 1))
-        key_ok &= (seg <= 2.0 * cell_px + 1e-9).all(axis=1)
-    a, ia, ib = a[key_ok], ia[key_ok], ib[key_ok]
-    if len(a) == 0:
-        return _empty(stats)
-    pa, pb = ql[a], ql[a + 1]
-    chord = pb - pa
-    L = np.hypot(chord[:, 0], chord[:, 1])
-    u = chord / L[:, None]
-    v = np.column_stack([-u[:, 1], u[:, 0]])
-    # local coordinates (s along the chord from pa, r across)
-    def local(w):
-        d = ql[w] - pa[:, None, :]
-        return np.einsum("gkc,gc->gk", d, u), np.einsum("gkc,gc->gk", d, v)
-
-    sa, ra = local(ia)
-    sb, rb = local(ib)
-    ka, ca = _line_fit(sa, ra)  # r = ka*s + ca
-    kb, cb = _line_fit(sb, rb)
-    turn = np.abs(np.arctan(ka) - np.arctan(kb))
-    s_mid = 0.5 * L
-    lateral = np.abs((ka * s_mid + ca) - (kb * s_mid + cb))
-    fit_ok = np.isfinite(ka) & np.isfinite(kb) & (turn <= np.deg2rad(options.max_turn_deg)) & (lateral <= options.lateral_px * cell_px)
-    # the anchors must lie on their fits (straight runs; a ragged end is not a tangent)
-    ra_res = np.abs(ra - (ka[:, None] * sa + ca[:, None])).max(axis=1)
-    rb_res = np.abs(rb - (kb[:, None] * sb + cb[:, None])).max(axis=1)
-    fit_ok &= (ra_res <= options.lateral_px * cell_px) & (rb_res <= options.lateral_px * cell_px)
-    g = np.flatnonzero(fit_ok)
+    # 3. (second half) the other family's crossings, on light sheet k
+    chk = np.flatnonzero(~acc & np.isfinite(c_q[:, 0]))
+    if len(chk):
+        a_chk = gaps[chk, 0].astype(np.intp)
+        _p, z, _k_other, dist = model.sheet_check(c_q[chk], fam[a_chk], idx[a_chk].astype(np.intp))
+        acc[chk] = (dist <= options.residual_px) & (z >= depth_range_mm[0]) & (z <= depth_range_mm[1])
+    g = np.flatnonzero(acc)
+    stats["crossing_gaps_filled"] = int(len(g))
     if len(g) == 0:
         return _empty(stats)
-    a, pa, u, v, L, ka, ca, kb, cb = a[g], pa[g], u[g], v[g], L[g], ka[g], ca[g], kb[g], cb[g]
-    f_g, k_g = fl[a], kl[a]
-
-    # 3. a crossing in the gap: a labelled junction of this line on the curve, or the other family's run
-    crossing = np.zeros(len(a), bool)
-    qj = np.asarray(q_junction, np.float64).reshape(-1, 2)
-    lab = np.asarray(junction_labels, np.int64).reshape(-1, 2)
-    labelled = np.flatnonzero(lab[:, 0] != UNLABELLED)
-    if len(labelled):
-        from scipy.spatial import cKDTree
-
-        mid = np.array([curve_one(pa[gi], u[gi], v[gi], L[gi], ka[gi], ca[gi], kb[gi], cb[gi], 0.5 * L[gi]) for gi in range(len(a))])
-        hits = cKDTree(qj[labelled]).query_ball_point(mid, r=0.5 * L + cell_px)
-        for gi, hs in enumerate(hits):
-            for h in hs:
-                jj = labelled[h]
-                if lab[jj, f_g[gi] - 1] != k_g[gi]:
-                    continue
-                s = float((qj[jj] - pa[gi]) @ u[gi])
-                if not 0.0 < s < L[gi]:
-                    continue
-                on = curve_one(pa[gi], u[gi], v[gi], L[gi], ka[gi], ca[gi], kb[gi], cb[gi], s)
-                if np.hypot(*(qj[jj] - on)) <= options.lateral_px * cell_px * 2.0:
-                    crossing[gi] = True
-                    break
-    rest = np.flatnonzero(~crossing)
-    if len(rest):
-        crossing[rest] = _other_family_crossing(
-            rest, pa, u, v, L, ka, ca, kb, cb, f_g, k_g, q_samples, family_samples, model, sigma_px, cell_px,
-            depth_range_mm, options)
-    stats["crossing_gaps_filled"] = int(crossing.sum())
-    g = np.flatnonzero(crossing)
-    if len(g) == 0:
-        return _empty(stats)
-    # 4. points one sampling step apart strictly inside the gap
-    n_pts = np.maximum(np.ceil(L[g] / cell_px - 1e-9).astype(np.int64) - 1, 0)
+    # 4. points one sampling step apart strictly inside the gap, on the blend of the two tangents
+    a = gaps[g, 0].astype(np.intp)
+    pa = q[a]
+    u = gaps[g, 1:3]
+    L = gaps[g, 3]
+    ka, ca, kb, cb = gaps[g, 4], gaps[g, 5], gaps[g, 6], gaps[g, 7]
+    n_pts = np.maximum(np.ceil(L / cell_px - 1e-9).astype(np.int64) - 1, 0)
     rep = np.repeat(np.arange(len(g)), n_pts)
     first = np.cumsum(n_pts) - n_pts
     step_no = np.arange(int(n_pts.sum())) - np.repeat(first, n_pts) + 1
-    s = (step_no * (L[g] / (n_pts + 1))[rep])
-    gg = g[rep]
-    w = s / L[gg]
-    r = (1.0 - w) * (ka[gg] * s + ca[gg]) + w * (kb[gg] * s + cb[gg])
-    q_new = pa[gg] + s[:, None] * u[gg] + r[:, None] * v[gg]
+    s = step_no * (L / (n_pts + 1))[rep]
+    w = s / L[rep]
+    r = (1.0 - w) * (ka[rep] * s + ca[rep]) + w * (kb[rep] * s + cb[rep])
+    v = np.column_stack([-u[:, 1], u[:, 0]])
+    q_new = pa[rep] + s[:, None] * u[rep] + r[:, None] * v[rep]
     stats["samples_crossing_filled"] = int(len(q_new))
-    return CrossingPoints(q_new, f_g[gg].astype(np.intp), k_g[gg].astype(np.float64), jl[a[gg]].astype(np.int64), stats)
+    aa = a[rep]
+    return CrossingPoints(q_new, fam[aa].astype(np.intp), idx[aa].astype(np.float64),
+                          np.asarray(junction, np.int64).reshape(-1)[aa], stats)
 
 
-def curve_one(pa, u, v, L, ka, ca, kb, cb, s: float) -> np.ndarray:
-    """The gap's curve (module doc, step 4) at s (camera px along the chord from its first end)."""
-    w = min(max(s / L, 0.0), 1.0)
-    r = (1.0 - w) * (ka * s + ca) + w * (kb * s + cb)
-    return pa + s * u + r * v
-
-
-def _line_fit(s: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares r = k·s + c per row of s, r (G, K)."""
-    sm = s.mean(axis=1)
-    rm = r.mean(axis=1)
-    ds = s - sm[:, None]
-    sxx = (ds * ds).sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        k = (ds * (r - rm[:, None])).sum(axis=1) / sxx
-    return k, rm - k * sm
-
-
-def _family_direction(model: RigModel, family: int) -> np.ndarray:
-    """A unit image direction of `family`'s lines for ordering samples along them: the principal axis of
-    the rig's predicted directions over the camera (`RigModel.dir_cam`)."""
-    d = np.asarray(model.dir_cam, np.float64)[..., family - 1, :].reshape(-1, 2)
-    d = d[np.isfinite(d).all(axis=1)]
-    w, V = np.linalg.eigh(d.T @ d)
-    return V[:, 1]
-
-
-def _other_family_crossing(rest, pa, u, v, L, ka, ca, kb, cb, f_g, k_g, q_samples, family_samples, model: RigModel,
-                           sigma_px, cell_px, depth_range_mm, options: CrossingFillOptions) -> np.ndarray:
-    """For gaps `rest`: whether the other family's samples run straight through the gap and cross the gap's
-    curve at a point that, on light sheet k, lies within residual_px of a line of the other family inside
-    the depth range (module doc, step 3)."""
-    from scipy.spatial import cKDTree
-
-    out = np.zeros(len(rest), bool)
-    qs = np.asarray(q_samples, np.float64).reshape(-1, 2)
-    fs = np.asarray(family_samples).reshape(-1)
-    okq = np.isfinite(qs).all(axis=1)
-    trees = {}
+def _family_directions(model: RigModel) -> tuple[np.ndarray, np.ndarray]:
+    """Unit image directions of the two families' lines for ordering samples along them: the principal
+    axes of the rig's predicted directions over the camera (`RigModel.dir_cam`); once per rig."""
+    key = id(model.dir_cam)
+    hit = _DIRS.get(key)
+    if hit is not None and hit[0] is model.dir_cam:
+        return hit[1], hit[2]
+    out = []
     for f in (1, 2):
-        m = okq & (fs == f)
-        trees[f] = (cKDTree(qs[m]), qs[m]) if m.any() else None
-    c_q = np.full((len(rest), 2), np.nan)
-    for n_, gi in enumerate(rest):
-        other = 3 - int(f_g[gi])
-        if trees[other] is None:
-            continue
-        tree, qo = trees[other]
-        mid = curve_one(pa[gi], u[gi], v[gi], L[gi], ka[gi], ca[gi], kb[gi], cb[gi], 0.5 * L[gi])
-        nb = tree.query_ball_point(mid, r=0.5 * L[gi] + sigma_px)
-        if len(nb) < 4:
-            continue
-        P = qo[nb]
-        c = P.mean(axis=0)
-        d = P - c
-        w, V = np.linalg.eigh(d.T @ d / len(P))
-        if w[0] > (options.lateral_px * cell_px) ** 2:  # not one straight run
-            continue
-        e = V[:, 1]
-        # intersection of the other family's run (c + μ e) with the gap's chord frame: solve for s where
-        # the curve meets the run (two Newton steps from the chord's intersection)
-        s = _intersect_s(c, e, pa[gi], u[gi], v[gi], L[gi], ka[gi], ca[gi], kb[gi], cb[gi])
-        if s is None or not (0.0 < s < L[gi]):
-            continue
-        c_q[n_] = curve_one(pa[gi], u[gi], v[gi], L[gi], ka[gi], ca[gi], kb[gi], cb[gi], s)
-    has = np.flatnonzero(np.isfinite(c_q[:, 0]))
-    if len(has) == 0:
-        return out
-    gi = rest[has]
-    _p, z, _k_other, dist = model.sheet_check(c_q[has], f_g[gi], k_g[gi])
-    good = (dist <= options.residual_px) & (z >= depth_range_mm[0]) & (z <= depth_range_mm[1])
-    out[has[good]] = True
-    return out
+        d = np.asarray(model.dir_cam, np.float64)[..., f - 1, :].reshape(-1, 2)
+        d = d[np.isfinite(d).all(axis=1)]
+        _w, V = np.linalg.eigh(d.T @ d)
+        out.append(V[:, 1])
+    if len(_DIRS) > 32:
+        _DIRS.clear()
+    _DIRS[key] = (model.dir_cam, out[0], out[1])
+    return out[0], out[1]
 
 
-def _intersect_s(c, e, pa, u, v, L, ka, ca, kb, cb) -> float | None:
-    """s (along the chord) where the gap's curve meets the straight run c + μ·e, or None if parallel."""
-    n = np.array([-e[1], e[0]])  # normal of the run
-    s = 0.5 * L
-    for _ in range(3):
-        p = curve_one(pa, u, v, L, ka, ca, kb, cb, s)
-        h = 1e-3
-        dp = (curve_one(pa, u, v, L, ka, ca, kb, cb, s + h) - p) / h
-        den = dp @ n
-        if abs(den) < 1e-6:
-            return None
-        s = s - ((p - c) @ n) / den
-    return float(s)
+_DIRS: dict = {}
+
+
+@njit
+def _curve_r(s, L, ka, ca, kb, cb):
+    """The gap's curve across its chord at s along it: the two sides' tangents blended linearly."""
+    w = min(max(s / L, 0.0), 1.0)
+    return (1.0 - w) * (ka * s + ca) + w * (kb * s + cb)
+
+
+@njit
+def _grid(q, keep, cell):
+    """Bucket grid (x0, y0, gw, gh, CSR start, items) of the points q[keep] in cells `cell` px wide."""
+    n = q.shape[0]
+    x0 = np.inf
+    y0 = np.inf
+    x1 = -np.inf
+    y1 = -np.inf
+    for i in range(n):
+        if keep[i]:
+            x0 = min(x0, q[i, 0])
+            y0 = min(y0, q[i, 1])
+            x1 = max(x1, q[i, 0])
+            y1 = max(y1, q[i, 1])
+    if x0 > x1:
+        x0 = 0.0
+        y0 = 0.0
+        x1 = 0.0
+        y1 = 0.0
+    gw = int((x1 - x0) / cell) + 1
+    gh = int((y1 - y0) / cell) + 1
+    cnt = np.zeros(gw * gh + 1, np.intp)
+    cid = np.full(n, -1, np.intp)
+    for i in range(n):
+        if keep[i]:
+            c = int((q[i, 1] - y0) / cell) * gw + int((q[i, 0] - x0) / cell)
+            cid[i] = c
+            cnt[c + 1] += 1
+    for c in range(gw * gh):
+        cnt[c + 1] += cnt[c]
+    items = np.empty(cnt[gw * gh], np.intp)
+    fill = cnt[:-1].copy()
+    for i in range(n):
+        if cid[i] >= 0:
+            items[fill[cid[i]]] = i
+            fill[cid[i]] += 1
+    return x0, y0, gw, gh, cnt, items
+
+
+@njit
+def _k_gaps(q, fam, idx, order, qj, lab, jsel, qs, fs, cell, sigma, min_gap, gap_max, anchor, max_turn, lateral):
+    """Steps 1–3 of the module doc over the ordered labelled samples `order`: the gaps between consecutive
+    samples of one line, the two sides' tangent fits and tests, and the crossing in the gap. Returns the
+    number of gaps, per gap that passed the tangent tests (G, 8) [first sample id, u (2), L, ka, ca, kb,
+    cb], accepted (G,) bool (a labelled junction of this line in the gap) and c_q (G, 2): where the other
+    family's straight run crosses the curve (NaN where none), to be checked on the light sheet."""
+    n = order.shape[0]
+    cap = n // 2 + 1
+    gaps = np.empty((cap, 8))
+    acc = np.zeros(cap, np.bool_)
+    c_q = np.full((cap, 2), np.nan)
+    G = 0
+    n_gaps = 0
+    gcell = max(gap_max, 4.0 * sigma, 2.0 * cell)
+    jkeep = np.zeros(qj.shape[0], np.bool_)
+    for j in jsel:
+        jkeep[j] = True
+    jx0, jy0, jgw, jgh, jstart, jitems = _grid(qj, jkeep, gcell)
+    skeep = np.zeros(qs.shape[0], np.bool_)
+    for i in range(qs.shape[0]):
+        skeep[i] = (fs[i] == 1 or fs[i] == 2) and np.isfinite(qs[i, 0]) and np.isfinite(qs[i, 1])
+    sx0, sy0, sgw, sgh, sstart, sitems = _grid(qs, skeep, gcell)
+    tan_turn = max_turn
+    for p in range(n - 1):
+        a = order[p]
+        b = order[p + 1]
+        if fam[a] != fam[b] or idx[a] != idx[b]:
+            continue
+        dx = q[b, 0] - q[a, 0]
+        dy = q[b, 1] - q[a, 1]
+        L = math.sqrt(dx * dx + dy * dy)
+        if not (L > min_gap and L <= gap_max):
+            continue
+        n_gaps += 1
+        if p - anchor + 1 < 0 or p + anchor >= n:
+            continue
+        # 2. the anchors: consecutive samples of the same line, steps of at most 2 cells
+        ok = True
+        for k in range(1, anchor):
+            for (s0, s1) in ((order[p - k + 1], order[p - k]), (order[p + k], order[p + k + 1])):
+                if fam[s1] != fam[a] or idx[s1] != idx[a]:
+                    ok = False
+                ex = q[s1, 0] - q[s0, 0]
+                ey = q[s1, 1] - q[s0, 1]
+                if ex * ex + ey * ey > 4.0 * cell * cell + 1e-9:
+                    ok = False
+        if not ok:
+            continue
+        ux = dx / L
+        uy = dy / L
+        fit = np.empty(4)
+        for side in range(2):
+            sm = 0.0
+            rm = 0.0
+            for k in range(anchor):
+                sid = order[p - k] if side == 0 else order[p + 1 + k]
+                ex = q[sid, 0] - q[a, 0]
+                ey = q[sid, 1] - q[a, 1]
+                sm += ex * ux + ey * uy
+                rm += -ex * uy + ey * ux
+            sm /= anchor
+            rm /= anchor
+            sxx = 0.0
+            sxr = 0.0
+            for k in range(anchor):
+                sid = order[p - k] if side == 0 else order[p + 1 + k]
+                ex = q[sid, 0] - q[a, 0]
+                ey = q[sid, 1] - q[a, 1]
+                ds = ex * ux + ey * uy - sm
+                sxx += ds * ds
+                sxr += ds * (-ex * uy + ey * ux - rm)
+            if not sxx > 0.0:
+                ok = False
+                break
+            kk = sxr / sxx
+            fit[2 * side] = kk
+            fit[2 * side + 1] = rm - kk * sm
+            for k in range(anchor):
+                sid = order[p - k] if side == 0 else order[p + 1 + k]
+                ex = q[sid, 0] - q[a, 0]
+                ey = q[sid, 1] - q[a, 1]
+                if abs(-ex * uy + ey * ux - (kk * (ex * ux + ey * uy) + fit[2 * side + 1])) > lateral:
+                    ok = False
+        if not ok:
+            continue
+        ka, ca, kb, cb = fit[0], fit[1], fit[2], fit[3]
+        if abs(math.atan(ka) - math.atan(kb)) > tan_turn:
+            continue
+        sm = 0.5 * L
+        if abs((ka * sm + ca) - (kb * sm + cb)) > lateral:
+            continue
+        gaps[G, 0] = a
+        gaps[G, 1] = ux
+        gaps[G, 2] = uy
+        gaps[G, 3] = L
+        gaps[G, 4] = ka
+        gaps[G, 5] = ca
+        gaps[G, 6] = kb
+        gaps[G, 7] = cb
+        rmid = _curve_r(sm, L, ka, ca, kb, cb)
+        mx = q[a, 0] + sm * ux - rmid * uy
+        my = q[a, 1] + sm * uy + rmid * ux
+        f = fam[a]
+        kidx = int(idx[a])
+        # 3. a labelled junction of this line in the gap, on the curve
+        gx = int((mx - jx0) / gcell)
+        gy = int((my - jy0) / gcell)
+        found = False
+        for cy in range(max(gy - 1, 0), min(gy + 2, jgh)):
+            for cx in range(max(gx - 1, 0), min(gx + 2, jgw)):
+                c = cy * jgw + cx
+                for t in range(jstart[c], jstart[c + 1]):
+                    j = jitems[t]
+                    if lab[j, f - 1] != kidx:
+                        continue
+                    ex = qj[j, 0] - q[a, 0]
+                    ey = qj[j, 1] - q[a, 1]
+                    s = ex * ux + ey * uy
+                    if not (s > 0.0 and s < L):
+                        continue
+                    if abs(-ex * uy + ey * ux - _curve_r(s, L, ka, ca, kb, cb)) <= 2.0 * lateral:
+                        found = True
+        if found:
+            acc[G] = True
+            G += 1
+            continue
+        # else: the other family's samples within L/2 + σ of the gap's middle, one straight run
+        rad = 0.5 * L + sigma
+        gx = int((mx - sx0) / gcell)
+        gy = int((my - sy0) / gcell)
+        cnt = 0
+        sx = 0.0
+        sy = 0.0
+        for cy in range(max(gy - 1, 0), min(gy + 2, sgh)):
+            for cx in range(max(gx - 1, 0), min(gx + 2, sgw)):
+                c = cy * sgw + cx
+                for t in range(sstart[c], sstart[c + 1]):
+                    i = sitems[t]
+                    if fs[i] == f:
+                        continue
+                    ex = qs[i, 0] - mx
+                    ey = qs[i, 1] - my
+                    if ex * ex + ey * ey <= rad * rad:
+                        cnt += 1
+                        sx += qs[i, 0]
+                        sy += qs[i, 1]
+        if cnt >= 4:
+            cxm = sx / cnt
+            cym = sy / cnt
+            cxx = 0.0
+            cxy = 0.0
+            cyy = 0.0
+            for cy in range(max(gy - 1, 0), min(gy + 2, sgh)):
+                for cx in range(max(gx - 1, 0), min(gx + 2, sgw)):
+                    c = cy * sgw + cx
+                    for t in range(sstart[c], sstart[c + 1]):
+                        i = sitems[t]
+                        if fs[i] == f:
+                            continue
+                        ex = qs[i, 0] - mx
+                        ey = qs[i, 1] - my
+                        if ex * ex + ey * ey <= rad * rad:
+                            ex = qs[i, 0] - cxm
+                            ey = qs[i, 1] - cym
+                            cxx += ex * ex
+                            cxy += ex * ey
+                            cyy += ey * ey
+            cxx /= cnt
+            cxy /= cnt
+            cyy /= cnt
+            tr = 0.5 * (cxx + cyy)
+            det = math.sqrt(max(0.25 * (cxx - cyy) ** 2 + cxy * cxy, 0.0))
+            lam_min = tr - det
+            lam_max = tr + det
+            if lam_min <= lateral * lateral:
+                # major axis e; normal nx, ny
+                if abs(cxy) > 1e-12:
+                    ex = lam_max - cyy
+                    ey = cxy
+                elif cxx >= cyy:
+                    ex = 1.0
+                    ey = 0.0
+                else:
+                    ex = 0.0
+                    ey = 1.0
+                en = math.sqrt(ex * ex + ey * ey)
+                nx = -ey / en
+                ny = ex / en
+                # Newton on s: (curve(s) − c)·n = 0
+                s = sm
+                good = True
+                for _ in range(4):
+                    r = _curve_r(s, L, ka, ca, kb, cb)
+                    px = q[a, 0] + s * ux - r * uy
+                    py = q[a, 1] + s * uy + r * ux
+                    h = 1e-4 * max(L, 1.0)
+                    r2 = _curve_r(s + h, L, ka, ca, kb, cb)
+                    dpx = (ux - (r2 - r) / h * uy)
+                    dpy = (uy + (r2 - r) / h * ux)
+                    den = dpx * nx + dpy * ny
+                    if abs(den) < 1e-6:
+                        good = False
+                        break
+                    s = s - ((px - cxm) * nx + (py - cym) * ny) / den
+                if good and s > 0.0 and s < L:
+                    r = _curve_r(s, L, ka, ca, kb, cb)
+                    c_q[G, 0] = q[a, 0] + s * ux - r * uy
+                    c_q[G, 1] = q[a, 1] + s * uy + r * ux
+        G += 1
+    return n_gaps, gaps[:G], acc[:G], c_q[:G]
