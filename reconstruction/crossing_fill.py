@@ -88,6 +88,7 @@ def fill_crossings(
     q_samples: np.ndarray,
     family_samples: np.ndarray,
     q_junction: np.ndarray,
+    junction_dir: np.ndarray,
     junction_labels: np.ndarray,
     model: RigModel,
     sigma_px: float,
@@ -100,9 +101,10 @@ def fill_crossings(
     q (P, 2), family (P,), index (P,) (NaN: unlabelled), junction (P,): the label stage's samples
     (`SampleLabels.q`, the observation's family, `SampleLabels.index`, `.junction`). q_samples (S, 2),
     family_samples (S,): every extracted sample (the other family's run through a gap). q_junction (M, 2),
-    junction_labels (M, 2) (UNLABELLED where none). sigma_px: the extraction's smoothing; cell_px: its
+    junction_dir (M, 2, 2) (the fitted i- and j-line directions), junction_labels (M, 2) (UNLABELLED where
+    none). sigma_px: the extraction's smoothing; cell_px: its
     sampling step (1, or 2 on a half-resolution image). Camera px throughout. Compiled (`_k_gaps`)."""
-    stats = {"crossing_gaps": 0, "crossing_gaps_filled": 0, "samples_crossing_filled": 0}
+    stats = {"crossing_gaps": 0, "crossing_gaps_filled": 0, "samples_crossing_filled": 0, "crossing_gaps_rejected": {}}
     if not options.enabled:
         return _empty(stats)
     q = np.ascontiguousarray(q, np.float64).reshape(-1, 2)
@@ -123,16 +125,20 @@ def fill_crossings(
     order = sel[np.argsort(key)]
     lab = np.ascontiguousarray(junction_labels, np.int64).reshape(-1, 2)
     qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
+    jdir = np.ascontiguousarray(junction_dir, np.float64).reshape(-1, 2, 2)
     jsel = np.flatnonzero(lab[:, 0] != UNLABELLED)
     gap_max = cell_px + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.trim_sigma,
                                         min_angle_deg=options.min_angle_deg)
     qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
     fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
-    n_gaps, gaps, acc, c_q = _k_gaps(
-        q, fam, idx, order.astype(np.intp), qj, lab, jsel.astype(np.intp), qs, fs, float(cell_px), float(sigma_px),
-        float(options.min_gap_cells * cell_px), float(gap_max), int(options.anchor), float(np.deg2rad(options.max_turn_deg)),
+    n_gaps, gaps, acc, c_q, why = _k_gaps(
+        q, fam, idx, order.astype(np.intp), qj, jdir, lab, jsel.astype(np.intp), qs, fs, float(cell_px), float(sigma_px),
+        float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),
+        int(options.anchor), float(np.deg2rad(options.max_turn_deg)),
         float(options.lateral_px * cell_px))
     stats["crossing_gaps"] = int(n_gaps)
+    stats["crossing_gaps_rejected"] = {"anchors_missing": int(why[0]), "anchors_broken": int(why[1]), "anchors_crooked": int(why[2]),
+                                       "turn": int(why[3]), "lateral": int(why[4]), "no_crossing": 0}
     G = len(acc)
     if G == 0:
         return _empty(stats)
@@ -144,6 +150,7 @@ def fill_crossings(
         acc[chk] = (dist <= options.residual_px) & (z >= depth_range_mm[0]) & (z <= depth_range_mm[1])
     g = np.flatnonzero(acc)
     stats["crossing_gaps_filled"] = int(len(g))
+    stats["crossing_gaps_rejected"]["no_crossing"] = int(G - len(g))
     if len(g) == 0:
         return _empty(stats)
     # 4. points one sampling step apart strictly inside the gap, on the blend of the two tangents
@@ -236,7 +243,7 @@ def _grid(q, keep, cell):
 
 
 @njit
-def _k_gaps(q, fam, idx, order, qj, lab, jsel, qs, fs, cell, sigma, min_gap, gap_max, anchor, max_turn, lateral):
+def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_gap, gap_max, half_gap, anchor, max_turn, lateral):
     """Steps 1–3 of the module doc over the ordered labelled samples `order`: the gaps between consecutive
     samples of one line, the two sides' tangent fits and tests, and the crossing in the gap. Returns the
     number of gaps, per gap that passed the tangent tests (G, 8) [first sample id, u (2), L, ka, ca, kb,
@@ -245,6 +252,7 @@ def _k_gaps(q, fam, idx, order, qj, lab, jsel, qs, fs, cell, sigma, min_gap, gap
     n = order.shape[0]
     cap = n // 2 + 1
     gaps = np.empty((cap, 8))
+    why = np.zeros(6, np.int64)  # gaps rejected: anchors out of range, anchors not one run, anchors off their line, turn, lateral
     acc = np.zeros(cap, np.bool_)
     c_q = np.full((cap, 2), np.nan)
     G = 0
@@ -271,6 +279,7 @@ def _k_gaps(q, fam, idx, order, qj, lab, jsel, qs, fs, cell, sigma, min_gap, gap
             continue
         n_gaps += 1
         if p - anchor + 1 < 0 or p + anchor >= n:
+            why[0] += 1
             continue
         # 2. the anchors: consecutive samples of the same line, steps of at most 2 cells
         ok = True
@@ -280,9 +289,10 @@ def _k_gaps(q, fam, idx, order, qj, lab, jsel, qs, fs, cell, sigma, min_gap, gap
                     ok = False
                 ex = q[s1, 0] - q[s0, 0]
                 ey = q[s1, 1] - q[s0, 1]
-                if ex * ex + ey * ey > 4.0 * cell * cell + 1e-9:
+                if ex * ex + ey * ey > gap_max * gap_max:
                     ok = False
         if not ok:
+            why[1] += 1
             continue
         ux = dx / L
         uy = dy / L
@@ -320,12 +330,15 @@ def _k_gaps(q, fam, idx, order, qj, lab, jsel, qs, fs, cell, sigma, min_gap, gap
                 if abs(-ex * uy + ey * ux - (kk * (ex * ux + ey * uy) + fit[2 * side + 1])) > lateral:
                     ok = False
         if not ok:
+            why[2] += 1
             continue
         ka, ca, kb, cb = fit[0], fit[1], fit[2], fit[3]
         if abs(math.atan(ka) - math.atan(kb)) > tan_turn:
+            why[3] += 1
             continue
         sm = 0.5 * L
         if abs((ka * sm + ca) - (kb * sm + cb)) > lateral:
+            why[4] += 1
             continue
         gaps[G, 0] = a
         gaps[G, 1] = ux
@@ -351,12 +364,18 @@ def _k_gaps(q, fam, idx, order, qj, lab, jsel, qs, fs, cell, sigma, min_gap, gap
                     j = jitems[t]
                     if lab[j, f - 1] != kidx:
                         continue
+                    # the gap lies in this crossing's own gap: the junction is in it, or no farther from
+                    # its nearer end than the crossing's mixing zone and trim reach along the line,
+                    # half_gap/sin θ (θ the crossing's angle); on the curve (beyond the gap's ends: on that
+                    # side's tangent)
                     ex = qj[j, 0] - q[a, 0]
                     ey = qj[j, 1] - q[a, 1]
                     s = ex * ux + ey * uy
-                    if not (s > 0.0 and s < L):
+                    if abs(-ex * uy + ey * ux - _curve_r(s, L, ka, ca, kb, cb)) > 2.0 * lateral:
                         continue
-                    if abs(-ex * uy + ey * ux - _curve_r(s, L, ka, ca, kb, cb)) <= 2.0 * lateral:
+                    sin_t = abs(jdir[j, 0, 0] * jdir[j, 1, 1] - jdir[j, 0, 1] * jdir[j, 1, 0])
+                    reach = half_gap / max(sin_t, 1e-3)
+                    if s >= -reach and s <= L + reach:
                         found = True
         if found:
             acc[G] = True
@@ -445,4 +464,4 @@ def _k_gaps(q, fam, idx, order, qj, lab, jsel, qs, fs, cell, sigma, min_gap, gap
                     c_q[G, 0] = q[a, 0] + s * ux - r * uy
                     c_q[G, 1] = q[a, 1] + s * uy + r * ux
         G += 1
-    return n_gaps, gaps[:G], acc[:G], c_q[:G]
+    return n_gaps, gaps[:G], acc[:G], c_q[:G], why

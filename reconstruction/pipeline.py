@@ -151,7 +151,7 @@ def reconstruct(
         # points through crossings whose line is labelled on both sides (decision 0086); the paper labeller's
         # output stays the paper's method
         cp = fill_crossings(sl.q, obs.family, sl.index, sl.junction, q_samples=obs.q, family_samples=obs.family,
-                            q_junction=obs.q_junction, junction_labels=lab.labels, model=model, sigma_px=sigma,
+                            q_junction=obs.q_junction, junction_dir=obs.junction_dir, junction_labels=lab.labels, model=model, sigma_px=sigma,
                             cell_px=float(max(1, int(obs.stats.get("scale", 1)))),
                             depth_range_mm=(options.depth_min_mm, options.depth_max_mm), options=options.crossing)
     t_label = time.perf_counter()
