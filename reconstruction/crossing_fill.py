@@ -50,7 +50,8 @@ class CrossingFillOptions:
     per sampling step). residual_px: the crossing, triangulated on the line's light sheet, must lie this
     close to a line of the other family (projector px). mix_sigma, trim_sigma, min_angle_deg: the longest
     gap a crossing leaves (as the label stage's TraceOptions: mixing zone, trims, crossings down to this
-    angle in the image)."""
+    angle in the image). require_crossing: off fills every gap that passes the tangent tests (for tests: a
+    line that continues collinearly on another surface passes them; only the crossing check sees it)."""
 
     enabled: bool = True
     min_gap_cells: float = 1.6
@@ -61,6 +62,7 @@ class CrossingFillOptions:
     mix_sigma: float = 2.0
     trim_sigma: float = 1.0
     min_angle_deg: float = 45.0
+    require_crossing: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,6 +150,8 @@ def fill_crossings(
         a_chk = gaps[chk, 0].astype(np.intp)
         _p, z, _k_other, dist = model.sheet_check(c_q[chk], fam[a_chk], idx[a_chk].astype(np.intp))
         acc[chk] = (dist <= options.residual_px) & (z >= depth_range_mm[0]) & (z <= depth_range_mm[1])
+    if not options.require_crossing:
+        acc[:] = True
     g = np.flatnonzero(acc)
     stats["crossing_gaps_filled"] = int(len(g))
     stats["crossing_gaps_rejected"]["no_crossing"] = int(G - len(g))
@@ -371,7 +375,7 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
                     ex = qj[j, 0] - q[a, 0]
                     ey = qj[j, 1] - q[a, 1]
                     s = ex * ux + ey * uy
-                    if abs(-ex * uy + ey * ux - _curve_r(s, L, ka, ca, kb, cb)) > 2.0 * lateral:
+                    if abs(-ex * uy + ey * ux - _curve_r(s, L, ka, ca, kb, cb)) > lateral:
                         continue
                     sin_t = abs(jdir[j, 0, 0] * jdir[j, 1, 1] - jdir[j, 0, 1] * jdir[j, 1, 0])
                     reach = half_gap / max(sin_t, 1e-3)
