@@ -241,7 +241,8 @@ def _triangulate(
         "points_dropped_out_of_range": N - n_keep,
         "labelling_margin_px": float(model.margin.margin_px),
         "labeller": options.labeller,
-        "samples_labelled": int(sample_stats.get("samples_labelled", 0)),
+        # the crossing points (decision 0086) are labelled samples too
+        "samples_labelled": int(sample_stats.get("samples_labelled", 0)) + (int(cp.stats["samples_crossing_filled"]) if cp is not None else 0),
         "samples_left_out": {k: int(sample_stats.get(k, 0)) for k in ("mixing_zone", "samples_unseeded", "cut_profile")},
         "samples_snapped": int(sample_stats.get("snapped_to_junction_line", 0)),
         "samples_from_crossings": int(sample_stats.get("samples_from_crossings", 0)),
