@@ -110,21 +110,14 @@ def fill_crossings(
     if not options.enabled:
         return _empty(stats)
     q = np.ascontiguousarray(q, np.float64).reshape(-1, 2)
-    fam = np.asarray(family).astype(np.intp).reshape(-1)
-    idx = np.asarray(index, np.float64).reshape(-1)
-    sel = np.flatnonzero(np.isfinite(idx) & np.isfinite(q[:, 0]) & np.isfinite(q[:, 1]) & ((fam == 1) | (fam == 2)))
-    if len(sel) < 2 * options.anchor + 2:
-        return _empty(stats)
+    fam = np.ascontiguousarray(np.asarray(family).reshape(-1), np.intp)
+    idx = np.ascontiguousarray(index, np.float64).reshape(-1)
     # 1. each line's labelled samples in order along its family's direction (the rig's prediction)
-    fl = fam[sel]
     d1, d2 = _family_directions(model)
-    qsel = q[sel]
-    t = np.where(fl == 1, qsel @ d1, qsel @ d2)
-    # one float key (line, then position): lines are integers, positions span less than `span`
-    span = 2.0 * (np.abs(t).max() + 1.0)
-    ksel = idx[sel]
-    key = (fl * (ksel.max() - ksel.min() + 2.0) + (ksel - ksel.min())) * span + t
+    sel, key = _k_order(q, fam, idx, d1, d2)
     order = sel[np.argsort(key)]
+    if len(order) < 2 * options.anchor + 2:
+        return _empty(stats)
     lab = np.ascontiguousarray(junction_labels, np.int64).reshape(-1, 2)
     qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
     jdir = np.ascontiguousarray(junction_dir, np.float64).reshape(-1, 2, 2)
@@ -134,7 +127,7 @@ def fill_crossings(
     qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
     fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
     n_gaps, gaps, acc, c_q, why = _k_gaps(
-        q, fam, idx, order.astype(np.intp), qj, jdir, lab, jsel.astype(np.intp), qs, fs, float(cell_px), float(sigma_px),
+        q, fam, idx, order, qj, jdir, lab, jsel.astype(np.intp), qs, fs, float(cell_px), float(sigma_px),
         float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),
         int(options.anchor), float(np.deg2rad(options.max_turn_deg)),
         float(options.lateral_px * cell_px))
@@ -158,24 +151,9 @@ def fill_crossings(
     if len(g) == 0:
         return _empty(stats)
     # 4. points one sampling step apart strictly inside the gap, on the blend of the two tangents
-    a = gaps[g, 0].astype(np.intp)
-    pa = q[a]
-    u = gaps[g, 1:3]
-    L = gaps[g, 3]
-    ka, ca, kb, cb = gaps[g, 4], gaps[g, 5], gaps[g, 6], gaps[g, 7]
-    n_pts = np.maximum(np.ceil(L / cell_px - 1e-9).astype(np.int64) - 1, 0)
-    rep = np.repeat(np.arange(len(g)), n_pts)
-    first = np.cumsum(n_pts) - n_pts
-    step_no = np.arange(int(n_pts.sum())) - np.repeat(first, n_pts) + 1
-    s = step_no * (L / (n_pts + 1))[rep]
-    w = s / L[rep]
-    r = (1.0 - w) * (ka[rep] * s + ca[rep]) + w * (kb[rep] * s + cb[rep])
-    v = np.column_stack([-u[:, 1], u[:, 0]])
-    q_new = pa[rep] + s[:, None] * u[rep] + r[:, None] * v[rep]
+    q_new, f_new, k_new, j_new = _k_points(q, fam, idx, np.ascontiguousarray(junction, np.int64).reshape(-1), gaps, acc, float(cell_px))
     stats["samples_crossing_filled"] = int(len(q_new))
-    aa = a[rep]
-    return CrossingPoints(q_new, fam[aa].astype(np.intp), idx[aa].astype(np.float64),
-                          np.asarray(junction, np.int64).reshape(-1)[aa], stats)
+    return CrossingPoints(q_new, f_new, k_new, j_new, stats)
 
 
 def _family_directions(model: RigModel) -> tuple[np.ndarray, np.ndarray]:
@@ -198,6 +176,71 @@ def _family_directions(model: RigModel) -> tuple[np.ndarray, np.ndarray]:
 
 
 _DIRS: dict = {}
+
+
+@njit
+def _k_order(q, fam, idx, d1, d2):
+    """The labelled samples (finite index and position, family 1 or 2) and their sort key: family, line index
+    and position along the family's direction (d1, d2) as one float, line-major (indices are integers and
+    the positions span less than `span`). NumPy's argsort of the key is faster than numba's."""
+    n = q.shape[0]
+    sel = np.empty(n, np.intp)
+    m = 0
+    kmin = np.inf
+    kmax = -np.inf
+    tmax = 0.0
+    t = np.empty(n)
+    for i in range(n):
+        if (fam[i] == 1 or fam[i] == 2) and np.isfinite(idx[i]) and np.isfinite(q[i, 0]) and np.isfinite(q[i, 1]):
+            sel[m] = i
+            if fam[i] == 1:
+                t[m] = q[i, 0] * d1[0] + q[i, 1] * d1[1]
+            else:
+                t[m] = q[i, 0] * d2[0] + q[i, 1] * d2[1]
+            kmin = min(kmin, idx[i])
+            kmax = max(kmax, idx[i])
+            tmax = max(tmax, abs(t[m]))
+            m += 1
+    span = 2.0 * (tmax + 1.0)
+    key = np.empty(m)
+    for p in range(m):
+        i = sel[p]
+        key[p] = (fam[i] * (kmax - kmin + 2.0) + (idx[i] - kmin)) * span + t[p]
+    return sel[:m], key
+
+
+@njit
+def _k_points(q, fam, idx, junction, gaps, acc, cell):
+    """Step 4: points one sampling step apart strictly inside each accepted gap, on the blend of its two
+    tangents: q (N, 2), family (N,), index (N,), junction (N,) (that of the gap's first sample)."""
+    G = gaps.shape[0]
+    total = 0
+    for g in range(G):
+        if acc[g]:
+            total += max(int(math.ceil(gaps[g, 3] / cell - 1e-9)) - 1, 0)
+    q_new = np.empty((total, 2))
+    f_new = np.empty(total, np.intp)
+    k_new = np.empty(total)
+    j_new = np.empty(total, np.int64)
+    o = 0
+    for g in range(G):
+        if not acc[g]:
+            continue
+        a = int(gaps[g, 0])
+        ux = gaps[g, 1]
+        uy = gaps[g, 2]
+        L = gaps[g, 3]
+        n_pts = max(int(math.ceil(L / cell - 1e-9)) - 1, 0)
+        for k in range(1, n_pts + 1):
+            s = k * (L / (n_pts + 1))
+            r = _curve_r(s, L, gaps[g, 4], gaps[g, 5], gaps[g, 6], gaps[g, 7])
+            q_new[o, 0] = q[a, 0] + s * ux - r * uy
+            q_new[o, 1] = q[a, 1] + s * uy + r * ux
+            f_new[o] = fam[a]
+            k_new[o] = idx[a]
+            j_new[o] = junction[a]
+            o += 1
+    return q_new, f_new, k_new, j_new
 
 
 @njit
