@@ -9,19 +9,23 @@ samples: which line", steps 1 and 6). When σ is large against the junction step
 `fill_crossings` adds points in such a gap when the line is labelled with the same index k on both sides
 of it and the two sides are one line on one surface:
 
-1. The labelled samples of each line (family f, index k) are ordered along the family's mean direction;
-   two consecutive ones farther apart than `min_gap_cells` sampling steps and at most the longest gap a
-   crossing leaves (`continuation.crossing_gap_px` plus one step) open a gap.
-2. Each side's `anchor` samples nearest the gap (consecutive, each step at most 2 cells) are fitted with a
-   straight line. The two tangents must agree within `max_turn_deg` and meet at the gap's middle within
-   `lateral_px` (per sampling step): along one light sheet the image position across the line is a
-   function of depth, so a line that continues on another surface is offset sideways (the
-   depth-continuity test of the traces and of the continuation, decisions 0045, 0072).
+1. The labelled samples of each line (family f, index k) are ordered along the family's direction (the
+   principal axis of the rig's predicted directions); two consecutive ones farther apart than
+   `min_gap_cells` sampling steps and at most the longest gap a crossing leaves
+   (`continuation.crossing_gap_px` plus one step) open a gap.
+2. Each side's `anchor` samples nearest the gap (same line, each step at most that longest gap: a side may
+   span a neighbouring small gap) are fitted with a straight line; they must lie on it within `lateral_px`
+   (per sampling step). The two tangents must agree within `max_turn_deg` and meet at the gap's middle
+   within `lateral_px`: along one light sheet the image position across the line is a function of depth,
+   so a line that continues on another surface is offset sideways (the depth-continuity test of the
+   traces and of the continuation, decisions 0045, 0072).
 3. The gap must hold a crossing on that surface: a labelled junction with index k on this family, on the
-   fitted curve; or a straight run of the other family's samples through the gap whose intersection with
-   the curve, triangulated on light sheet k, lands within `residual_px` projector px of a line of the
-   other family, inside the depth range (the crossing check of step 6, decision 0052). A gap at a
-   silhouette or a shadow has no such crossing and stays empty.
+   gap's curve (within `lateral_px`), inside the gap or no farther from its nearer end than that
+   crossing's mixing zone and trim reach along the line, (mix_sigma + trim_sigma)·σ / sin θ (θ from the
+   junction's fitted directions); or a straight run of the other family's samples through the gap whose
+   intersection with the curve, triangulated on light sheet k, lands within `residual_px` projector px of
+   a line of the other family, inside the depth range (the crossing check of step 6, decision 0052). A gap
+   at a silhouette or a shadow has no such crossing and stays empty.
 4. Points are placed one sampling step apart on the blend of the two tangents (weight moving linearly
    from one side to the other: the straight chord for a straight line, the low-order curve for a gently
    bending one). Each point is then, like every line sample, the camera ray ∩ light sheet k.
@@ -294,10 +298,12 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
     """Steps 1–3 of the module doc over the ordered labelled samples `order`: the gaps between consecutive
     samples of one line, the two sides' tangent fits and tests, and the crossing in the gap. Returns the
     number of gaps, per gap that passed the tangent tests (G, 8) [first sample id, u (2), L, ka, ca, kb,
-    cb], accepted (G,) bool (a labelled junction of this line in the gap) and c_q (G, 2): where the other
-    family's straight run crosses the curve (NaN where none), to be checked on the light sheet."""
+    cb] (u the chord's direction from the first sample, L its length, r = k·s + c each side's tangent
+    across the chord), accepted (G,) bool (a labelled junction of this line names the gap), c_q (G, 2):
+    where the other family's straight run crosses the curve (NaN where none), to be checked on the light
+    sheet, and the counts of gaps rejected (5,): anchors missing, broken, crooked, turn, lateral."""
     n = order.shape[0]
-    cap = n // 2 + 1
+    cap = max(n - 1, 1)  # at most one gap per consecutive pair
     gaps = np.empty((cap, 8))
     why = np.zeros(6, np.int64)  # gaps rejected: anchors out of range, anchors not one run, anchors off their line, turn, lateral
     acc = np.zeros(cap, np.bool_)
@@ -313,7 +319,6 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
     for i in range(qs.shape[0]):
         skeep[i] = (fs[i] == 1 or fs[i] == 2) and np.isfinite(qs[i, 0]) and np.isfinite(qs[i, 1])
     sx0, sy0, sgw, sgh, sstart, sitems = _grid(qs, skeep, gcell)
-    tan_turn = max_turn
     for p in range(n - 1):
         a = order[p]
         b = order[p + 1]
@@ -380,7 +385,7 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
             why[2] += 1
             continue
         ka, ca, kb, cb = fit[0], fit[1], fit[2], fit[3]
-        if abs(math.atan(ka) - math.atan(kb)) > tan_turn:
+        if abs(math.atan(ka) - math.atan(kb)) > max_turn:
             why[3] += 1
             continue
         sm = 0.5 * L
