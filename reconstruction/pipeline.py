@@ -26,6 +26,7 @@ import numpy as np
 
 from calibration.errors import ReconstructionError
 from calibration.models import ProCam
+from reconstruction.crossing_fill import CrossingFillOptions, CrossingPoints, fill_crossings
 from reconstruction.extraction import ExtractOptions, GridObservation, extract_grid, sigma_for
 from reconstruction.geometry import triangulate_rays
 from reconstruction.labelling import LabelOptions, Labels, SampleLabels, TraceOptions, label_epipolar, label_paper, label_samples
@@ -40,7 +41,8 @@ class ReconstructOptions:
     depth_min_mm, depth_max_mm: the working volume (camera-frame z): labels that put the surface
     outside it are rejected, and points outside it are dropped. dense: also triangulate every line sample
     (ray–light-plane), not only the junctions. extract, label: the stages' own options (label's depth
-    range is replaced by the one here), trace: how line samples inherit their line's index."""
+    range is replaced by the one here), trace: how line samples inherit their line's index; crossing:
+    points through the crossings' gaps of lines labelled on both sides (decision 0086; default labeller only)."""
 
     labeller: Literal["epipolar", "paper"] = "epipolar"
     depth_min_mm: float = 100.0
@@ -49,6 +51,7 @@ class ReconstructOptions:
     extract: ExtractOptions = ExtractOptions()
     label: LabelOptions = LabelOptions()
     trace: TraceOptions = TraceOptions()
+    crossing: CrossingFillOptions = CrossingFillOptions()
 
     def __post_init__(self) -> None:
         if self.labeller not in ("epipolar", "paper"):
@@ -174,8 +177,16 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
         sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=options.trace, model=model,
                            depth_range_mm=(options.depth_min_mm, options.depth_max_mm), image=image,
                            line_width_px=model.line_width_cam_px)
+    cp = None
+    if sl is not None and options.labeller == "epipolar" and options.crossing.enabled:
+        # points through crossings whose line is labelled on both sides (decision 0086); the paper labeller's
+        # output stays the paper's method
+        cp = fill_crossings(sl.q, obs.family, sl.index, sl.junction, q_samples=obs.q, family_samples=obs.family,
+                            q_junction=obs.q_junction, junction_dir=obs.junction_dir, junction_labels=lab.labels, model=model, sigma_px=sigma,
+                            cell_px=float(max(1, int(obs.stats.get("scale", 1)))),
+                            depth_range_mm=(options.depth_min_mm, options.depth_max_mm), options=options.crossing)
     t_label = time.perf_counter()
-    result = _triangulate(image, obs, lab, sl, model, xy_cam_j, options)
+    result = _triangulate(image, obs, lab, sl, model, xy_cam_j, options, cp)
     t_tri = time.perf_counter()
     ms = dict(frame.ms)
     ms["label"] = 1e3 * (t_label - t_extract)
@@ -186,7 +197,8 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
 
 
 def _triangulate(
-    image, obs: GridObservation, lab: Labels, sl: SampleLabels | None, model: RigModel, xy_cam_j, options: ReconstructOptions
+    image, obs: GridObservation, lab: Labels, sl: SampleLabels | None, model: RigModel, xy_cam_j, options: ReconstructOptions,
+    cp: CrossingPoints | None = None,
 ) -> Reconstruction:
     procam = model.procam
     H, W = np.shape(image)[:2]
@@ -203,8 +215,15 @@ def _triangulate(
     # Line samples (indexed by labelling.label_samples): camera ray ∩ the light sheet of their line. This,
     # the working-volume test of every point, the depth map and the conversion to the outputs are one
     # kernel pass (_k_frame_points), junctions first, then the samples in order.
+    family_s = obs.family
     if sl is not None and len(sl.index):
         q_s, index_s, junction_s = sl.q, sl.index, sl.junction
+        if cp is not None and len(cp.index):
+            # the crossing points (decision 0086) after the samples
+            q_s = np.concatenate([q_s, cp.q])
+            index_s = np.concatenate([index_s, cp.index])
+            junction_s = np.concatenate([junction_s, cp.junction])
+            family_s = np.concatenate([np.asarray(obs.family), cp.family.astype(np.asarray(obs.family).dtype)])
     else:
         q_s, index_s, junction_s = _EMPTY_Q, _EMPTY_F, _EMPTY_I
     n_max = n_j + len(index_s)
@@ -217,16 +236,16 @@ def _triangulate(
     kernel_ok, tables = model.pixel_sheet_tables
     # Rigs the kernel cannot do alone (a projector with more than 5 distortion coefficients), and samples
     # outside the camera table: the sample points come from RigModel.intersect_light_sheets instead.
-    p_given = _EMPTY_P if kernel_ok else _sample_points(model, q_s, index_s, obs.family)
+    p_given = _EMPTY_P if kernel_ok else _sample_points(model, q_s, index_s, family_s)
     z_range = (float(options.depth_min_mm), float(options.depth_max_mm))
     for _ in range(2):
         n_keep, n_keep_j, N, n_outside = _k_frame_points(
-            p_j, obs.q_junction, jl, labels, lab.residual, q_s, index_s, obs.family, junction_s, p_given, UNLABELLED,
+            p_j, obs.q_junction, jl, labels, lab.residual, q_s, index_s, family_s, junction_s, p_given, UNLABELLED,
             *tables, *z_range, depth, out_p, out_q, out_f, out_l, out_r,
         )
         if not n_outside:
             break
-        p_given = _sample_points(model, q_s, index_s, obs.family)
+        p_given = _sample_points(model, q_s, index_s, family_s)
         depth.fill(np.nan)
 
     # Overlay segments: from each segment's fit, between its extreme samples.
@@ -250,11 +269,13 @@ def _triangulate(
         "points_dropped_out_of_range": N - n_keep,
         "labelling_margin_px": float(model.margin.margin_px),
         "labeller": options.labeller,
-        "samples_labelled": int(sample_stats.get("samples_labelled", 0)),
+        # the crossing points (decision 0086) are labelled samples too
+        "samples_labelled": int(sample_stats.get("samples_labelled", 0)) + (int(cp.stats["samples_crossing_filled"]) if cp is not None else 0),
         "samples_left_out": {k: int(sample_stats.get(k, 0)) for k in ("mixing_zone", "samples_unseeded", "cut_profile")},
         "samples_snapped": int(sample_stats.get("snapped_to_junction_line", 0)),
         "samples_from_crossings": int(sample_stats.get("samples_from_crossings", 0)),
         "samples_gap_filled": int(sample_stats.get("samples_gap_filled", 0)),
+        "samples_crossing_filled": int(cp.stats["samples_crossing_filled"]) if cp is not None else 0,
         "traces_conflicting": int(sample_stats.get("traces_conflicting", 0)),
         "components_split": int(lab.stats.get("components_split", 0)),
     }

@@ -1,0 +1,519 @@
+"""Points through the crossings of labelled lines (decision 0086).
+
+Where two lines cross, extraction leaves a gap in each: the crossing's core has no ridge samples (both
+Hessian eigenvalues are negative there) and the label stage drops the samples of the mixing zone around it
+unless a labelled junction or two facing pieces of one index hold them (docs/reconstruction.md, "Line
+samples: which line", steps 1 and 6). When σ is large against the junction step (the paper rigs, lines
+~12 camera px wide) these gaps are a large share of every line.
+
+`fill_crossings` adds points in such a gap when the line is labelled with the same index k on both sides
+of it and the two sides are one line on one surface:
+
+1. The labelled samples of each line (family f, index k) are ordered along the family's direction (the
+   principal axis of the rig's predicted directions); two consecutive ones farther apart than
+   `min_gap_cells` sampling steps and at most the longest gap a crossing leaves
+   (`continuation.crossing_gap_px` plus one step) open a gap.
+2. Each side's `anchor` samples nearest the gap (same line, each step at most that longest gap: a side may
+   span a neighbouring small gap) are fitted with a straight line; they must lie on it within `lateral_px`
+   (per sampling step). The two tangents must agree within `max_turn_deg` and meet at the gap's middle
+   within `lateral_px`: along one light sheet the image position across the line is a function of depth,
+   so a line that continues on another surface is offset sideways (the depth-continuity test of the
+   traces and of the continuation, decisions 0045, 0072).
+3. The gap must hold a crossing on that surface: a labelled junction with index k on this family, on the
+   gap's curve (within `lateral_px`), inside the gap or no farther from its nearer end than that
+   crossing's mixing zone and trim reach along the line, (mix_sigma + trim_sigma)·σ / sin θ (θ from the
+   junction's fitted directions); or a straight run of the other family's samples through the gap whose
+   intersection with the curve, triangulated on light sheet k, lands within `residual_px` projector px of
+   a line of the other family, inside the depth range (the crossing check of step 6, decision 0052). A gap
+   at a silhouette or a shadow has no such crossing and stays empty.
+4. Points are placed one sampling step apart on the blend of the two tangents (weight moving linearly
+   from one side to the other: the straight chord for a straight line, the low-order curve for a gently
+   bending one). Each point is then, like every line sample, the camera ray ∩ light sheet k.
+
+The paper labeller's output is left alone (the pipeline calls this only for the default labeller).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from reconstruction._jit import njit
+from reconstruction.continuation import crossing_gap_px
+from reconstruction.rigmodel import UNLABELLED, RigModel
+
+
+@dataclass(frozen=True)
+class CrossingFillOptions:
+    """enabled: add the points (else nothing is added). min_gap_cells: a gap between consecutive labelled
+    samples of one line is at least this many sampling steps. anchor: samples fitted on each side.
+    max_turn_deg: the two sides' directions may differ by at most this. lateral_px: the two tangents must
+    meet at the gap's middle within this, and each side's anchors lie on their line within this (camera px
+    per sampling step). residual_px: the crossing, triangulated on the line's light sheet, must lie this
+    close to a line of the other family (projector px). mix_sigma, trim_sigma, min_angle_deg: the longest
+    gap a crossing leaves (as the label stage's TraceOptions: mixing zone, trims, crossings down to this
+    angle in the image). require_crossing: off fills every gap that passes the tangent tests (for tests: a
+    line that continues collinearly on another surface passes them; only the crossing check sees it)."""
+
+    enabled: bool = True
+    min_gap_cells: float = 1.6
+    anchor: int = 4
+    max_turn_deg: float = 12.0
+    lateral_px: float = 0.5
+    residual_px: float = 1.0
+    mix_sigma: float = 2.0
+    trim_sigma: float = 1.0
+    min_angle_deg: float = 45.0
+    require_crossing: bool = True
+
+
+@dataclass(frozen=True, eq=False)
+class CrossingPoints:
+    """The added samples: q (N, 2) camera px, family (N,) 1 or 2, index (N,) float line index, junction
+    (N,) int (the junction whose index the gap's first side took, −1 where none); stats: counts."""
+
+    q: np.ndarray
+    family: np.ndarray
+    index: np.ndarray
+    junction: np.ndarray
+    stats: dict
+
+
+def _empty(stats: dict) -> CrossingPoints:
+    return CrossingPoints(np.zeros((0, 2)), np.zeros(0, np.intp), np.zeros(0), np.zeros(0, np.int64), stats)
+
+
+def fill_crossings(
+    q: np.ndarray,
+    family: np.ndarray,
+    index: np.ndarray,
+    junction: np.ndarray,
+    *,
+    q_samples: np.ndarray,
+    family_samples: np.ndarray,
+    q_junction: np.ndarray,
+    junction_dir: np.ndarray,
+    junction_labels: np.ndarray,
+    model: RigModel,
+    sigma_px: float,
+    cell_px: float,
+    depth_range_mm: tuple[float, float],
+    options: CrossingFillOptions = CrossingFillOptions(),
+) -> CrossingPoints:
+    """Points in the crossings' gaps of lines labelled with one index on both sides (module doc).
+
+    q (P, 2), family (P,), index (P,) (NaN: unlabelled), junction (P,): the label stage's samples
+    (`SampleLabels.q`, the observation's family, `SampleLabels.index`, `.junction`). q_samples (S, 2),
+    family_samples (S,): every extracted sample (the other family's run through a gap). q_junction (M, 2),
+    junction_dir (M, 2, 2) (the fitted i- and j-line directions), junction_labels (M, 2) (UNLABELLED where
+    none). sigma_px: the extraction's smoothing; cell_px: its
+    sampling step (1, or 2 on a half-resolution image). Camera px throughout. Compiled (`_k_gaps`)."""
+    stats = {"crossing_gaps": 0, "crossing_gaps_filled": 0, "samples_crossing_filled": 0, "crossing_gaps_rejected": {}}
+    if not options.enabled:
+        return _empty(stats)
+    q = np.ascontiguousarray(q, np.float64).reshape(-1, 2)
+    fam = np.ascontiguousarray(np.asarray(family).reshape(-1), np.intp)
+    idx = np.ascontiguousarray(index, np.float64).reshape(-1)
+    # 1. each line's labelled samples in order along its family's direction (the rig's prediction)
+    d1, d2 = _family_directions(model)
+    sel, key = _k_order(q, fam, idx, d1, d2)
+    order = sel[np.argsort(key)]
+    if len(order) < 2 * options.anchor + 2:
+        return _empty(stats)
+    lab = np.ascontiguousarray(junction_labels, np.int64).reshape(-1, 2)
+    qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
+    jdir = np.ascontiguousarray(junction_dir, np.float64).reshape(-1, 2, 2)
+    jsel = np.flatnonzero(lab[:, 0] != UNLABELLED)
+    gap_max = cell_px + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.trim_sigma,
+                                        min_angle_deg=options.min_angle_deg)
+    qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
+    fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
+    n_gaps, gaps, acc, c_q, why = _k_gaps(
+        q, fam, idx, order, qj, jdir, lab, jsel.astype(np.intp), qs, fs, float(cell_px), float(sigma_px),
+        float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),
+        int(options.anchor), float(np.deg2rad(options.max_turn_deg)),
+        float(options.lateral_px * cell_px))
+    stats["crossing_gaps"] = int(n_gaps)
+    stats["crossing_gaps_rejected"] = {"anchors_missing": int(why[0]), "anchors_broken": int(why[1]), "anchors_crooked": int(why[2]),
+                                       "turn": int(why[3]), "lateral": int(why[4]), "no_crossing": 0}
+    G = len(acc)
+    if G == 0:
+        return _empty(stats)
+    # 3. (second half) the other family's crossings, on light sheet k
+    chk = np.flatnonzero(~acc & np.isfinite(c_q[:, 0]))
+    if len(chk):
+        a_chk = gaps[chk, 0].astype(np.intp)
+        _p, z, _k_other, dist = model.sheet_check(c_q[chk], fam[a_chk], idx[a_chk].astype(np.intp))
+        acc[chk] = (dist <= options.residual_px) & (z >= depth_range_mm[0]) & (z <= depth_range_mm[1])
+    if not options.require_crossing:
+        acc[:] = True
+    g = np.flatnonzero(acc)
+    stats["crossing_gaps_filled"] = int(len(g))
+    stats["crossing_gaps_rejected"]["no_crossing"] = int(G - len(g))
+    if len(g) == 0:
+        return _empty(stats)
+    # 4. points one sampling step apart strictly inside the gap, on the blend of the two tangents
+    q_new, f_new, k_new, j_new = _k_points(q, fam, idx, np.ascontiguousarray(junction, np.int64).reshape(-1), gaps, acc, float(cell_px))
+    stats["samples_crossing_filled"] = int(len(q_new))
+    return CrossingPoints(q_new, f_new, k_new, j_new, stats)
+
+
+def _family_directions(model: RigModel) -> tuple[np.ndarray, np.ndarray]:
+    """Unit image directions of the two families' lines for ordering samples along them: the principal
+    axes of the rig's predicted directions over the camera (`RigModel.dir_cam`); once per rig."""
+    key = id(model.dir_cam)
+    hit = _DIRS.get(key)
+    if hit is not None and hit[0] is model.dir_cam:
+        return hit[1], hit[2]
+    out = []
+    for f in (1, 2):
+        d = np.asarray(model.dir_cam, np.float64)[..., f - 1, :].reshape(-1, 2)
+        d = d[np.isfinite(d).all(axis=1)]
+        _w, V = np.linalg.eigh(d.T @ d)
+        out.append(V[:, 1])
+    if len(_DIRS) > 32:
+        _DIRS.clear()
+    _DIRS[key] = (model.dir_cam, out[0], out[1])
+    return out[0], out[1]
+
+
+_DIRS: dict = {}
+
+
+@njit
+def _k_order(q, fam, idx, d1, d2):
+    """The labelled samples (finite index and position, family 1 or 2) and their sort key: family, line index
+    and position along the family's direction (d1, d2) as one float, line-major (indices are integers and
+    the positions span less than `span`). NumPy's argsort of the key is faster than numba's."""
+    n = q.shape[0]
+    sel = np.empty(n, np.intp)
+    m = 0
+    kmin = np.inf
+    kmax = -np.inf
+    tmax = 0.0
+    t = np.empty(n)
+    for i in range(n):
+        if (fam[i] == 1 or fam[i] == 2) and np.isfinite(idx[i]) and np.isfinite(q[i, 0]) and np.isfinite(q[i, 1]):
+            sel[m] = i
+            if fam[i] == 1:
+                t[m] = q[i, 0] * d1[0] + q[i, 1] * d1[1]
+            else:
+                t[m] = q[i, 0] * d2[0] + q[i, 1] * d2[1]
+            kmin = min(kmin, idx[i])
+            kmax = max(kmax, idx[i])
+            tmax = max(tmax, abs(t[m]))
+            m += 1
+    span = 2.0 * (tmax + 1.0)
+    key = np.empty(m)
+    for p in range(m):
+        i = sel[p]
+        key[p] = (fam[i] * (kmax - kmin + 2.0) + (idx[i] - kmin)) * span + t[p]
+    return sel[:m], key
+
+
+@njit
+def _k_points(q, fam, idx, junction, gaps, acc, cell):
+    """Step 4: points one sampling step apart strictly inside each accepted gap, on the blend of its two
+    tangents: q (N, 2), family (N,), index (N,), junction (N,) (that of the gap's first sample)."""
+    G = gaps.shape[0]
+    total = 0
+    for g in range(G):
+        if acc[g]:
+            total += max(int(math.ceil(gaps[g, 3] / cell - 1e-9)) - 1, 0)
+    q_new = np.empty((total, 2))
+    f_new = np.empty(total, np.intp)
+    k_new = np.empty(total)
+    j_new = np.empty(total, np.int64)
+    o = 0
+    for g in range(G):
+        if not acc[g]:
+            continue
+        a = int(gaps[g, 0])
+        ux = gaps[g, 1]
+        uy = gaps[g, 2]
+        L = gaps[g, 3]
+        n_pts = max(int(math.ceil(L / cell - 1e-9)) - 1, 0)
+        for k in range(1, n_pts + 1):
+            s = k * (L / (n_pts + 1))
+            r = _curve_r(s, L, gaps[g, 4], gaps[g, 5], gaps[g, 6], gaps[g, 7])
+            q_new[o, 0] = q[a, 0] + s * ux - r * uy
+            q_new[o, 1] = q[a, 1] + s * uy + r * ux
+            f_new[o] = fam[a]
+            k_new[o] = idx[a]
+            j_new[o] = junction[a]
+            o += 1
+    return q_new, f_new, k_new, j_new
+
+
+@njit
+def _curve_r(s, L, ka, ca, kb, cb):
+    """The gap's curve across its chord at s along it: the two sides' tangents blended linearly."""
+    w = min(max(s / L, 0.0), 1.0)
+    return (1.0 - w) * (ka * s + ca) + w * (kb * s + cb)
+
+
+@njit
+def _grid(q, keep, cell):
+    """Bucket grid (x0, y0, gw, gh, CSR start, items) of the points q[keep] in cells `cell` px wide."""
+    n = q.shape[0]
+    x0 = np.inf
+    y0 = np.inf
+    x1 = -np.inf
+    y1 = -np.inf
+    for i in range(n):
+        if keep[i]:
+            x0 = min(x0, q[i, 0])
+            y0 = min(y0, q[i, 1])
+            x1 = max(x1, q[i, 0])
+            y1 = max(y1, q[i, 1])
+    if x0 > x1:
+        x0 = 0.0
+        y0 = 0.0
+        x1 = 0.0
+        y1 = 0.0
+    gw = int((x1 - x0) / cell) + 1
+    gh = int((y1 - y0) / cell) + 1
+    cnt = np.zeros(gw * gh + 1, np.intp)
+    cid = np.full(n, -1, np.intp)
+    for i in range(n):
+        if keep[i]:
+            c = int((q[i, 1] - y0) / cell) * gw + int((q[i, 0] - x0) / cell)
+            cid[i] = c
+            cnt[c + 1] += 1
+    for c in range(gw * gh):
+        cnt[c + 1] += cnt[c]
+    items = np.empty(cnt[gw * gh], np.intp)
+    fill = cnt[:-1].copy()
+    for i in range(n):
+        if cid[i] >= 0:
+            items[fill[cid[i]]] = i
+            fill[cid[i]] += 1
+    return x0, y0, gw, gh, cnt, items
+
+
+@njit
+def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_gap, gap_max, half_gap, anchor, max_turn, lateral):
+    """Steps 1–3 of the module doc over the ordered labelled samples `order`: the gaps between consecutive
+    samples of one line, the two sides' tangent fits and tests, and the crossing in the gap. Returns the
+    number of gaps, per gap that passed the tangent tests (G, 8) [first sample id, u (2), L, ka, ca, kb,
+    cb] (u the chord's direction from the first sample, L its length, r = k·s + c each side's tangent
+    across the chord), accepted (G,) bool (a labelled junction of this line names the gap), c_q (G, 2):
+    where the other family's straight run crosses the curve (NaN where none), to be checked on the light
+    sheet, and the counts of gaps rejected (5,): anchors missing, broken, crooked, turn, lateral."""
+    n = order.shape[0]
+    cap = max(n - 1, 1)  # at most one gap per consecutive pair
+    gaps = np.empty((cap, 8))
+    why = np.zeros(6, np.int64)  # gaps rejected: anchors out of range, anchors not one run, anchors off their line, turn, lateral
+    acc = np.zeros(cap, np.bool_)
+    c_q = np.full((cap, 2), np.nan)
+    G = 0
+    n_gaps = 0
+    gcell = max(gap_max, 4.0 * sigma, 2.0 * cell)
+    jkeep = np.zeros(qj.shape[0], np.bool_)
+    for j in jsel:
+        jkeep[j] = True
+    jx0, jy0, jgw, jgh, jstart, jitems = _grid(qj, jkeep, gcell)
+    skeep = np.zeros(qs.shape[0], np.bool_)
+    for i in range(qs.shape[0]):
+        skeep[i] = (fs[i] == 1 or fs[i] == 2) and np.isfinite(qs[i, 0]) and np.isfinite(qs[i, 1])
+    sx0, sy0, sgw, sgh, sstart, sitems = _grid(qs, skeep, gcell)
+    for p in range(n - 1):
+        a = order[p]
+        b = order[p + 1]
+        if fam[a] != fam[b] or idx[a] != idx[b]:
+            continue
+        dx = q[b, 0] - q[a, 0]
+        dy = q[b, 1] - q[a, 1]
+        L = math.sqrt(dx * dx + dy * dy)
+        if not (L > min_gap and L <= gap_max):
+            continue
+        n_gaps += 1
+        if p - anchor + 1 < 0 or p + anchor >= n:
+            why[0] += 1
+            continue
+        # 2. the anchors: consecutive samples of the same line, steps of at most 2 cells
+        ok = True
+        for k in range(1, anchor):
+            for (s0, s1) in ((order[p - k + 1], order[p - k]), (order[p + k], order[p + k + 1])):
+                if fam[s1] != fam[a] or idx[s1] != idx[a]:
+                    ok = False
+                ex = q[s1, 0] - q[s0, 0]
+                ey = q[s1, 1] - q[s0, 1]
+                if ex * ex + ey * ey > gap_max * gap_max:
+                    ok = False
+        if not ok:
+            why[1] += 1
+            continue
+        ux = dx / L
+        uy = dy / L
+        fit = np.empty(4)
+        for side in range(2):
+            sm = 0.0
+            rm = 0.0
+            for k in range(anchor):
+                sid = order[p - k] if side == 0 else order[p + 1 + k]
+                ex = q[sid, 0] - q[a, 0]
+                ey = q[sid, 1] - q[a, 1]
+                sm += ex * ux + ey * uy
+                rm += -ex * uy + ey * ux
+            sm /= anchor
+            rm /= anchor
+            sxx = 0.0
+            sxr = 0.0
+            for k in range(anchor):
+                sid = order[p - k] if side == 0 else order[p + 1 + k]
+                ex = q[sid, 0] - q[a, 0]
+                ey = q[sid, 1] - q[a, 1]
+                ds = ex * ux + ey * uy - sm
+                sxx += ds * ds
+                sxr += ds * (-ex * uy + ey * ux - rm)
+            if not sxx > 0.0:
+                ok = False
+                break
+            kk = sxr / sxx
+            fit[2 * side] = kk
+            fit[2 * side + 1] = rm - kk * sm
+            for k in range(anchor):
+                sid = order[p - k] if side == 0 else order[p + 1 + k]
+                ex = q[sid, 0] - q[a, 0]
+                ey = q[sid, 1] - q[a, 1]
+                if abs(-ex * uy + ey * ux - (kk * (ex * ux + ey * uy) + fit[2 * side + 1])) > lateral:
+                    ok = False
+        if not ok:
+            why[2] += 1
+            continue
+        ka, ca, kb, cb = fit[0], fit[1], fit[2], fit[3]
+        if abs(math.atan(ka) - math.atan(kb)) > max_turn:
+            why[3] += 1
+            continue
+        sm = 0.5 * L
+        if abs((ka * sm + ca) - (kb * sm + cb)) > lateral:
+            why[4] += 1
+            continue
+        gaps[G, 0] = a
+        gaps[G, 1] = ux
+        gaps[G, 2] = uy
+        gaps[G, 3] = L
+        gaps[G, 4] = ka
+        gaps[G, 5] = ca
+        gaps[G, 6] = kb
+        gaps[G, 7] = cb
+        rmid = _curve_r(sm, L, ka, ca, kb, cb)
+        mx = q[a, 0] + sm * ux - rmid * uy
+        my = q[a, 1] + sm * uy + rmid * ux
+        f = fam[a]
+        kidx = int(idx[a])
+        # 3. a labelled junction of this line in the gap, on the curve
+        gx = int((mx - jx0) / gcell)
+        gy = int((my - jy0) / gcell)
+        found = False
+        for cy in range(max(gy - 1, 0), min(gy + 2, jgh)):
+            for cx in range(max(gx - 1, 0), min(gx + 2, jgw)):
+                c = cy * jgw + cx
+                for t in range(jstart[c], jstart[c + 1]):
+                    j = jitems[t]
+                    if lab[j, f - 1] != kidx:
+                        continue
+                    # the gap lies in this crossing's own gap: the junction is in it, or no farther from
+                    # its nearer end than the crossing's mixing zone and trim reach along the line,
+                    # half_gap/sin θ (θ the crossing's angle); on the curve (beyond the gap's ends: on that
+                    # side's tangent)
+                    ex = qj[j, 0] - q[a, 0]
+                    ey = qj[j, 1] - q[a, 1]
+                    s = ex * ux + ey * uy
+                    if abs(-ex * uy + ey * ux - _curve_r(s, L, ka, ca, kb, cb)) > lateral:
+                        continue
+                    sin_t = abs(jdir[j, 0, 0] * jdir[j, 1, 1] - jdir[j, 0, 1] * jdir[j, 1, 0])
+                    reach = half_gap / max(sin_t, 1e-3)
+                    if s >= -reach and s <= L + reach:
+                        found = True
+        if found:
+            acc[G] = True
+            G += 1
+            continue
+        # else: the other family's samples within L/2 + σ of the gap's middle, one straight run
+        rad = 0.5 * L + sigma
+        gx = int((mx - sx0) / gcell)
+        gy = int((my - sy0) / gcell)
+        cnt = 0
+        sx = 0.0
+        sy = 0.0
+        for cy in range(max(gy - 1, 0), min(gy + 2, sgh)):
+            for cx in range(max(gx - 1, 0), min(gx + 2, sgw)):
+                c = cy * sgw + cx
+                for t in range(sstart[c], sstart[c + 1]):
+                    i = sitems[t]
+                    if fs[i] == f:
+                        continue
+                    ex = qs[i, 0] - mx
+                    ey = qs[i, 1] - my
+                    if ex * ex + ey * ey <= rad * rad:
+                        cnt += 1
+                        sx += qs[i, 0]
+                        sy += qs[i, 1]
+        if cnt >= 4:
+            cxm = sx / cnt
+            cym = sy / cnt
+            cxx = 0.0
+            cxy = 0.0
+            cyy = 0.0
+            for cy in range(max(gy - 1, 0), min(gy + 2, sgh)):
+                for cx in range(max(gx - 1, 0), min(gx + 2, sgw)):
+                    c = cy * sgw + cx
+                    for t in range(sstart[c], sstart[c + 1]):
+                        i = sitems[t]
+                        if fs[i] == f:
+                            continue
+                        ex = qs[i, 0] - mx
+                        ey = qs[i, 1] - my
+                        if ex * ex + ey * ey <= rad * rad:
+                            ex = qs[i, 0] - cxm
+                            ey = qs[i, 1] - cym
+                            cxx += ex * ex
+                            cxy += ex * ey
+                            cyy += ey * ey
+            cxx /= cnt
+            cxy /= cnt
+            cyy /= cnt
+            tr = 0.5 * (cxx + cyy)
+            det = math.sqrt(max(0.25 * (cxx - cyy) ** 2 + cxy * cxy, 0.0))
+            lam_min = tr - det
+            lam_max = tr + det
+            if lam_min <= lateral * lateral:
+                # major axis e; normal nx, ny
+                if abs(cxy) > 1e-12:
+                    ex = lam_max - cyy
+                    ey = cxy
+                elif cxx >= cyy:
+                    ex = 1.0
+                    ey = 0.0
+                else:
+                    ex = 0.0
+                    ey = 1.0
+                en = math.sqrt(ex * ex + ey * ey)
+                nx = -ey / en
+                ny = ex / en
+                # Newton on s: (curve(s) − c)·n = 0
+                s = sm
+                good = True
+                for _ in range(4):
+                    r = _curve_r(s, L, ka, ca, kb, cb)
+                    px = q[a, 0] + s * ux - r * uy
+                    py = q[a, 1] + s * uy + r * ux
+                    h = 1e-4 * max(L, 1.0)
+                    r2 = _curve_r(s + h, L, ka, ca, kb, cb)
+                    dpx = (ux - (r2 - r) / h * uy)
+                    dpy = (uy + (r2 - r) / h * ux)
+                    den = dpx * nx + dpy * ny
+                    if abs(den) < 1e-6:
+                        good = False
+                        break
+                    s = s - ((px - cxm) * nx + (py - cym) * ny) / den
+                if good and s > 0.0 and s < L:
+                    r = _curve_r(s, L, ka, ca, kb, cb)
+                    c_q[G, 0] = q[a, 0] + s * ux - r * uy
+                    c_q[G, 1] = q[a, 1] + s * uy + r * ux
+        G += 1
+    return n_gaps, gaps[:G], acc[:G], c_q[:G], why
