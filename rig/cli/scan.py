@@ -83,6 +83,9 @@ def _report(summary, out: Path) -> None:
     )
     if s.reconstructed:
         typer.echo(f"reconstructed {s.points_total} points")
+        if s.capture_waits:
+            typer.echo(f"the capture waited {s.capture_waits} time(s), {s.capture_wait_s:.1f} s in all, for the "
+                       "reconstruction to make room (it runs beside the capture; decision 0088)")
     else:
         typer.echo("no reconstruction in this recording (frames and rig geometry only)")
     for w in s.warnings[:10]:
