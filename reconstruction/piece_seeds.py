@@ -74,6 +74,7 @@ def seed_one_sided(
     min_samples: int = 4,
     anchor: int = 3,
     rounds: int = 2,
+    confirm_far: bool = True,
 ) -> dict:
     """Label unlabelled pieces whose crossing with a labelled line at one end names line k and whose crossing
     at the other end lands, on light sheet k, on the next line of the other family (module doc).
@@ -84,7 +85,8 @@ def seed_one_sided(
     (seed_jid: the junction of the labelled sample at the near end's crossing). radius_px: how far from a
     piece's end the crossings are searched (step 6's `cross_radius` junction steps); grid: the frame's bucket
     grid of the samples (`labelling._sample_grid`, cells ≥ radius_px). tol_px: projector px. Pieces shorter
-    than min_samples are not tried. Returns counts: pieces and samples labelled, far ends rejected."""
+    than min_samples are not tried. confirm_far=False skips step 2 (one-sided evidence alone, decision 0049's
+    rule: for measurements only). Returns counts: pieces and samples labelled, far ends rejected."""
     stats = {"pieces": 0, "samples": 0, "far_rejected": 0, "far_missing": 0}
     n = len(piece)
     if n == 0:
@@ -133,9 +135,9 @@ def seed_one_sided(
                                       tangent, fam, index, False, float(radius_px), _SIN_MIN_CROSSING, *grid)
         has2 = o2 >= 0
         stats["far_missing"] += int(np.sum(~has2))
-        good = np.zeros(len(sel), bool)
+        good = np.zeros(len(sel), bool) if confirm_far else np.ones(len(sel), bool)
         g = np.flatnonzero(has2)
-        if len(g):
+        if len(g) and confirm_far:
             _, z2, m2, res2 = model.sheet_check(c2[g], fe[far[g]], k[g])
             good[g] = (res2 <= tol_px) & (z2 >= z_lo) & (z2 <= z_hi) & (np.abs(m2 - m_end[near[g]]) == 1)
             stats["far_rejected"] += int(len(g) - good[g].sum())
