@@ -73,7 +73,7 @@ def seed_one_sided(
     tol_px: float = 1.0,
     min_samples: int = 4,
     anchor: int = 3,
-    rounds: int = 2,
+    rounds: int = 1,
     confirm_far: bool = True,
 ) -> dict:
     """Label unlabelled pieces whose crossing with a labelled line at one end names line k and whose crossing
