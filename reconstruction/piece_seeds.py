@@ -45,16 +45,6 @@ from reconstruction.rigmodel import RigModel
 _SIN_MIN_CROSSING = float(np.sin(np.deg2rad(20.0)))  # the crossing searches' smallest crossing angle
 
 
-def _ranges(piece: np.ndarray, n_p: int) -> tuple[np.ndarray, np.ndarray]:
-    """First and last trace positions of each piece (pieces are contiguous runs numbered 0 .. n_p − 1)."""
-    first = np.full(n_p, -1, np.intp)
-    last = np.full(n_p, -1, np.intp)
-    pos = np.arange(len(piece))
-    first[piece[::-1]] = pos[::-1]
-    last[piece] = pos
-    return first, last
-
-
 def seed_one_sided(
     q: np.ndarray,
     fam: np.ndarray,
@@ -92,16 +82,16 @@ def seed_one_sided(
     if n == 0:
         return stats
     n_p = int(piece[-1]) + 1
-    first, last = _ranges(piece, n_p)
-    count = last - first + 1
     z_lo, z_hi = float(depth_range_mm[0]), float(depth_range_mm[1])
     for _ in range(rounds):
         e, u, end_pos, labelled, _, _ = piece_ends(q, sid, piece, tangent, index, seed_jid, n_p, int(anchor))
+        first, last = end_pos[:n_p], end_pos[n_p:]
+        count = last - first + 1
         cand = np.flatnonzero(~labelled & (count >= min_samples))
         nc = len(cand)
         if nc == 0:
             break
-        rows = np.r_[cand, cand + n_p]
+        rows = np.concatenate((cand, cand + n_p))
         E = np.ascontiguousarray(e[rows])
         U = np.ascontiguousarray(u[rows])
         fe = fam[sid[end_pos[rows]]].astype(np.int64)
