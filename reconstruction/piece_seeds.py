@@ -45,6 +45,49 @@ from reconstruction.rigmodel import RigModel
 _SIN_MIN_CROSSING = float(np.sin(np.deg2rad(20.0)))  # the crossing searches' smallest crossing angle
 
 
+def _end_line(p_end: int, first: np.ndarray, last: np.ndarray, piece: np.ndarray, ts: np.ndarray, q: np.ndarray, sid: np.ndarray,
+              trim_px: float, anchor: int):
+    """The line of a piece's end beyond the crossing's pull: the first sample at least trim_px (along the trace)
+    inside from the end at trace position p_end, and the unit chord to it from the sample `anchor` places
+    further in. None when the piece is too short."""
+    p = piece[p_end]
+    step = 1 if p_end == first[p] else -1
+    stop = last[p] if step == 1 else first[p]
+    j = p_end
+    while j != stop and abs(ts[j] - ts[p_end]) < trim_px:
+        j += step
+    j2 = j
+    for _ in range(anchor):
+        if j2 == stop:
+            break
+        j2 += step
+    a, b = q[sid[j]], q[sid[j2]]
+    d = a - b
+    L = float(np.hypot(d[0], d[1]))
+    if abs(ts[j] - ts[p_end]) < trim_px or L < 1.5:
+        return None
+    return a, d / L
+
+
+def _refined_crossing(p_far: int, o_partner: int, c0: np.ndarray, first, last, piece, ts, q, sid, trim_px: float, anchor: int):
+    """The far crossing from both pieces' end lines beyond the crossing's pull (`_end_line`): the far end of this
+    piece and the end of the partner's piece nearer c0. c0 when either piece is too short or the lines are
+    nearly parallel."""
+    own = _end_line(p_far, first, last, piece, ts, q, sid, trim_px, anchor)
+    pp = piece[o_partner]
+    ends = (first[pp], last[pp])
+    e_near = min(ends, key=lambda k: float(np.hypot(*(q[sid[k]] - c0))))
+    other = _end_line(e_near, first, last, piece, ts, q, sid, trim_px, anchor)
+    if own is None or other is None:
+        return c0
+    (a, u), (b, v) = own, other
+    den = u[0] * v[1] - u[1] * v[0]
+    if abs(den) < _SIN_MIN_CROSSING:
+        return c0
+    t = ((b[0] - a[0]) * v[1] - (b[1] - a[1]) * v[0]) / den
+    return a + t * u
+
+
 def seed_one_sided(
     q: np.ndarray,
     fam: np.ndarray,
@@ -65,6 +108,7 @@ def seed_one_sided(
     anchor: int = 3,
     rounds: int = 1,
     confirm_far: bool = True,
+    refine: bool = True,
 ) -> dict:
     """Label unlabelled pieces whose crossing with a labelled line at one end names line k and whose crossing
     at the other end lands, on light sheet k, on the next line of the other family (module doc).
@@ -128,6 +172,9 @@ def seed_one_sided(
         good = np.zeros(len(sel), bool) if confirm_far else np.ones(len(sel), bool)
         g = np.flatnonzero(has2)
         if len(g) and confirm_far:
+            if refine:
+                for r in g:
+                    c2[r] = _refined_crossing(int(end_pos[rows[far[r]]]), int(o2[r]), c2[r], first, last, piece, ts, q, sid, trim_px, anchor)
             _, z2, m2, res2 = model.sheet_check(c2[g], fe[far[g]], k[g])
             good[g] = (res2 <= tol_px) & (z2 >= z_lo) & (z2 <= z_hi) & (np.abs(m2 - m_end[near[g]]) == 1)
             stats["far_rejected"] += int(len(g) - good[g].sum())
