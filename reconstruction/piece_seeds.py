@@ -36,6 +36,8 @@ searches (`_label_kernels.crossing_hits_traces` on the frame's bucket grid) and 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from reconstruction._continuation_kernels import piece_ends
@@ -49,24 +51,27 @@ def _end_line(p_end: int, first: np.ndarray, last: np.ndarray, piece: np.ndarray
               trim_px: float, anchor: int):
     """The line of a piece's end beyond the crossing's pull: the first sample at least trim_px (along the trace)
     inside from the end at trace position p_end, and the unit chord to it from the sample `anchor` places
-    further in. None when the piece is too short."""
+    further in, as (x, y, ux, uy). None when the piece is too short."""
     p = piece[p_end]
     step = 1 if p_end == first[p] else -1
-    stop = last[p] if step == 1 else first[p]
-    j = p_end
-    while j != stop and abs(ts[j] - ts[p_end]) < trim_px:
+    stop = int(last[p] if step == 1 else first[p])
+    t0 = float(ts[p_end])
+    j = int(p_end)
+    while j != stop and abs(float(ts[j]) - t0) < trim_px:
         j += step
+    if abs(float(ts[j]) - t0) < trim_px:
+        return None
     j2 = j
     for _ in range(anchor):
         if j2 == stop:
             break
         j2 += step
-    a, b = q[sid[j]], q[sid[j2]]
-    d = a - b
-    L = float(np.hypot(d[0], d[1]))
-    if abs(ts[j] - ts[p_end]) < trim_px or L < 1.5:
+    ax, ay = float(q[sid[j], 0]), float(q[sid[j], 1])
+    dx, dy = ax - float(q[sid[j2], 0]), ay - float(q[sid[j2], 1])
+    L = math.hypot(dx, dy)
+    if L < 1.5:
         return None
-    return a, d / L
+    return ax, ay, dx / L, dy / L
 
 
 def _refined_crossing(p_far: int, o_partner: int, c0: np.ndarray, first, last, piece, ts, q, sid, trim_px: float, anchor: int):
@@ -74,18 +79,23 @@ def _refined_crossing(p_far: int, o_partner: int, c0: np.ndarray, first, last, p
     piece and the end of the partner's piece nearer c0. c0 when either piece is too short or the lines are
     nearly parallel."""
     own = _end_line(p_far, first, last, piece, ts, q, sid, trim_px, anchor)
-    pp = piece[o_partner]
-    ends = (first[pp], last[pp])
-    e_near = min(ends, key=lambda k: float(np.hypot(*(q[sid[k]] - c0))))
-    other = _end_line(e_near, first, last, piece, ts, q, sid, trim_px, anchor)
-    if own is None or other is None:
+    if own is None:
         return c0
-    (a, u), (b, v) = own, other
-    den = u[0] * v[1] - u[1] * v[0]
+    pp = piece[o_partner]
+    f, g = int(first[pp]), int(last[pp])
+    cx, cy = float(c0[0]), float(c0[1])
+    df = math.hypot(float(q[sid[f], 0]) - cx, float(q[sid[f], 1]) - cy)
+    dg = math.hypot(float(q[sid[g], 0]) - cx, float(q[sid[g], 1]) - cy)
+    other = _end_line(f if df <= dg else g, first, last, piece, ts, q, sid, trim_px, anchor)
+    if other is None:
+        return c0
+    ax, ay, ux, uy = own
+    bx, by, vx, vy = other
+    den = ux * vy - uy * vx
     if abs(den) < _SIN_MIN_CROSSING:
         return c0
-    t = ((b[0] - a[0]) * v[1] - (b[1] - a[1]) * v[0]) / den
-    return a + t * u
+    t = ((bx - ax) * vy - (by - ay) * vx) / den
+    return np.array([ax + t * ux, ay + t * uy])
 
 
 def seed_one_sided(
