@@ -22,7 +22,9 @@ checked on the piece's own light sheet:
    through (k′, m′), meets line k — on a line of the other family only where the epipolar direction runs
    through another junction, and on m ± 1 in particular only by a coincidence of the two depths. A far end
    without a crossing (a silhouette, a shadow, the pattern's edge) gives no confirmation and the piece stays
-   unlabelled.
+   unlabelled. The far crossing is the intersection of the two pieces' end lines beyond the crossing's pull
+   (from the first sample `trim_px` inside each end, along the chord `anchor` samples further in), or of the
+   tangents where a piece is too short for that.
 3. **Working volume.** Every sample of the piece, triangulated on sheet k, lies inside the depth range.
 
 The piece's samples within `trim_px` of its ends are left out (the crossings' light pulls the ridge there; the
