@@ -58,7 +58,7 @@ def test_pieces_seeded_at_one_end_lie_on_their_true_line(small_scene):
 
     obs, off, on = _run(s.procam, s.pattern, s.image, s.depth_range_mm, left)
     new = np.isfinite(on.index) & ~np.isfinite(off.index)
-    assert new.sum() >= 20, new.sum()
+    assert new.sum() >= 300, new.sum()  # (1047 measured)
     # the other steps are unchanged where piece_seeds labelled nothing new
     both = np.isfinite(off.index)
     assert np.all(np.isfinite(on.index[both]))
