@@ -132,7 +132,9 @@ def seed_one_sided(
     piece's end the crossings are searched (step 6's `cross_radius` junction steps); grid: the frame's bucket
     grid of the samples (`labelling._sample_grid`, cells ≥ radius_px). tol_px: projector px. Pieces shorter
     than min_samples are not tried. confirm_far=False skips step 2 (one-sided evidence alone, decision 0049's
-    rule: for measurements only). Returns counts: pieces and samples labelled, far ends rejected."""
+    rule: for measurements only). refine=False takes the far crossing from the end tangents only (measurements).
+    rounds: repetitions, newly labelled pieces serving as labelled lines. Returns counts: pieces and samples
+    labelled, far ends rejected, far ends without a crossing."""
     stats = {"pieces": 0, "samples": 0, "far_rejected": 0, "far_missing": 0}
     n = len(piece)
     if n == 0:
