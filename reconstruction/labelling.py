@@ -30,6 +30,7 @@ from reconstruction import _label_kernels as _k
 from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import epipolar_lines, paper_epipolar_mb
+from reconstruction.piece_seeds import seed_one_sided
 from reconstruction.rigmodel import UNLABELLED, RigModel
 from reconstruction.trace_ends import cut_facing_ends, cut_far_ends
 
@@ -507,6 +508,9 @@ class TraceOptions:
         ordered along each segment's fitted line, joined where segment ends, or a kept sample outside every
         segment, lie within link_px of one another, then cut by the rules above) instead of linking the
         samples again (decision 0085); observations without `segment_linked` are linked again.
+    piece_seeds: label a piece that a crossing with a labelled line names at one end when the crossing at
+        its other end, on the piece's light sheet, lands on the next line of the other family
+        (`reconstruction.piece_seeds`, decision 0089).
     """
 
     mix_sigma: float = 2.0
@@ -535,6 +539,7 @@ class TraceOptions:
     cross_rounds_after: int = 1
     far_end_check: bool = True
     from_segments: bool = True
+    piece_seeds: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -891,6 +896,13 @@ def label_samples(
                     q, fam, sid, piece, ts, tangent, index, seed_jid, model, depth_range_mm,
                     options.cross_radius * model.junction_step_cam_px, options.cross_trim_sigma * sigma_px,
                     options, grid, rounds=options.cross_rounds_after, state=cross_state)
+        if options.piece_seeds and options.cross_pieces and model is not None and grid is not None:
+            # pieces one labelled crossing names and the next crossing confirms on their own sheet (decision 0089)
+            ps = seed_one_sided(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
+                                radius_px=options.cross_radius * model.junction_step_cam_px, grid=grid,
+                                trim_px=options.cross_trim_sigma * sigma_px, tol_px=options.cross_residual_px,
+                                min_samples=options.cross_min_samples, anchor=options.fill_anchor)
+            stats["samples_piece_seeds"] = ps["samples"]
         if options.far_end_check and model is not None and grid is not None:
             # a seeded trace that ran across a depth edge onto a collinear line of another surface: the
             # crossing at its far end names another line (decision 0084, `reconstruction.trace_ends`)
