@@ -43,6 +43,7 @@ import math
 import numpy as np
 
 from reconstruction._continuation_kernels import piece_ends
+from reconstruction._jit import njit
 from reconstruction._label_kernels import crossing_hits_traces
 from reconstruction.rigmodel import RigModel
 
@@ -98,6 +99,56 @@ def _refined_crossing(p_far: int, o_partner: int, c0: np.ndarray, first, last, p
         return c0
     t = ((bx - ax) * vy - (by - ay) * vx) / den
     return np.array([ax + t * ux, ay + t * uy])
+
+
+@njit
+def _k_end_line(p_end, first, last, piece, ts, q, sid, trim_px, anchor):
+    """`_end_line` compiled: (ok, x, y, ux, uy)."""
+    p = piece[p_end]
+    step = 1 if p_end == first[p] else -1
+    stop = last[p] if step == 1 else first[p]
+    t0 = ts[p_end]
+    j = p_end
+    while j != stop and abs(ts[j] - t0) < trim_px:
+        j += step
+    if abs(ts[j] - t0) < trim_px:
+        return False, 0.0, 0.0, 0.0, 0.0
+    j2 = j
+    for _ in range(anchor):
+        if j2 == stop:
+            break
+        j2 += step
+    ax, ay = q[sid[j], 0], q[sid[j], 1]
+    dx, dy = ax - q[sid[j2], 0], ay - q[sid[j2], 1]
+    L = math.hypot(dx, dy)
+    if L < 1.5:
+        return False, 0.0, 0.0, 0.0, 0.0
+    return True, ax, ay, dx / L, dy / L
+
+
+@njit
+def _k_refine(p_far, o_partner, rows, c, first, last, piece, ts, q, sid, trim_px, anchor):
+    """`_refined_crossing` for every far end (p_far, o_partner) in one compiled loop, writing c[rows] in place
+    (the same arithmetic; tests/reconstruction/test_recon_piece_seeds.py compares the two)."""
+    for r in range(p_far.shape[0]):
+        ok, ax, ay, ux, uy = _k_end_line(p_far[r], first, last, piece, ts, q, sid, trim_px, anchor)
+        if not ok:
+            continue
+        i = rows[r]
+        pp = piece[o_partner[r]]
+        f, g = first[pp], last[pp]
+        cx, cy = c[i, 0], c[i, 1]
+        df = math.hypot(q[sid[f], 0] - cx, q[sid[f], 1] - cy)
+        dg = math.hypot(q[sid[g], 0] - cx, q[sid[g], 1] - cy)
+        ok2, bx, by, vx, vy = _k_end_line(f if df <= dg else g, first, last, piece, ts, q, sid, trim_px, anchor)
+        if not ok2:
+            continue
+        den = ux * vy - uy * vx
+        if abs(den) < _SIN_MIN_CROSSING:
+            continue
+        t = ((bx - ax) * vy - (by - ay) * vx) / den
+        c[i, 0] = ax + t * ux
+        c[i, 1] = ay + t * uy
 
 
 def seed_one_sided(
@@ -187,8 +238,8 @@ def seed_one_sided(
         g = np.flatnonzero(has2)
         if len(g) and confirm_far:
             if refine:
-                for r in g:
-                    c2[r] = _refined_crossing(int(end_pos[rows[far[r]]]), int(o2[r]), c2[r], first, last, piece, ts, q, sid, trim_px, anchor)
+                _k_refine(np.ascontiguousarray(end_pos[rows[far[g]]], np.int64), np.ascontiguousarray(o2[g], np.int64), g.astype(np.int64),
+                          c2, first, last, piece, ts, q, sid, float(trim_px), int(anchor))
             _, z2, m2, res2 = model.sheet_check(c2[g], fe[far[g]], k[g])
             good[g] = (res2 <= tol_px) & (z2 >= z_lo) & (z2 <= z_hi) & (np.abs(m2 - m_end[near[g]]) == 1)
             stats["far_rejected"] += int(len(g) - good[g].sum())
