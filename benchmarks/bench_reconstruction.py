@@ -16,7 +16,9 @@ Metrics (per scene and labeller):
 - coverage: share of the visible, lit line-centre pixels (true projector position within half a camera
   pixel of a line's centre, on the drawn part of the line) that have a reconstructed point within 1.5
   camera px;
-- time per stage (ms, median of --repeat runs, one OpenCV thread).
+- time per stage (ms, median of --repeat runs, one OpenCV thread), taken after the accuracy pass in rounds that
+  run every scene and labeller once each (`time_round_robin`), so that the shared machine's slow spells fall
+  on all rows alike.
 """
 
 from __future__ import annotations
@@ -58,14 +60,10 @@ def coverage(truth, pattern: GridPattern, q_cam: np.ndarray) -> float:
     return coverage_lines(truth, pattern, q_cam, radius_px=1.5)
 
 
-def evaluate(image, truth, procam, pattern, depth_range, labeller: str, repeat: int) -> dict:
+def evaluate(image, truth, procam, pattern, depth_range, labeller: str) -> dict:
+    """Accuracy, labels and coverage of one reconstruction (times: `time_round_robin`)."""
     opts = ReconstructOptions(labeller=labeller, depth_min_mm=depth_range[0], depth_max_mm=depth_range[1])
-    reconstruct(image, procam, pattern, options=opts)  # warm the per-rig cache
-    runs = []
-    for _ in range(repeat):
-        res = reconstruct(image, procam, pattern, options=opts)
-        runs.append(res.stats["ms"])
-    ms = {k: statistics.median(r[k] for r in runs) for k in ("extract", "label", "triangulate", "total")}
+    res = reconstruct(image, procam, pattern, options=opts)
     lab = res.junction_labels
     ok = lab[:, 0] != UNLABELLED
     # float32 samples: the table's figures have always been computed with them
@@ -84,12 +82,22 @@ def evaluate(image, truth, procam, pattern, depth_range, labeller: str, repeat: 
         "p99": float(np.percentile(rel, 99)) if len(rel) else float("nan"),
         "over1": float((rel > 1).mean() * 100) if len(rel) else float("nan"),
         "coverage": coverage(truth, pattern, res.q_cam) * 100,
-        "ms": ms,
         "warnings": res.warnings,
         "left_out": res.stats["junctions_left_out"],
         "split": res.stats.get("components_split", 0),
         "size": f"{image.shape[1]}x{image.shape[0]}",
     }
+
+
+def time_round_robin(jobs: list, repeat: int) -> list[dict]:
+    """Median stage times (ms) of each job (image, procam, pattern, options), over `repeat` rounds that each run
+    every job once: a slow spell of the shared machine falls on all scenes alike instead of on the one being
+    timed (decision 0088's benchmark round)."""
+    runs: list[list[dict]] = [[] for _ in jobs]
+    for _ in range(repeat):
+        for k, (image, procam, pattern, opts) in enumerate(jobs):
+            runs[k].append(reconstruct(image, procam, pattern, options=opts).stats["ms"])
+    return [{key: statistics.median(r[key] for r in rk) for key in ("extract", "label", "triangulate", "total")} for rk in runs]
 
 
 def main() -> None:
@@ -100,20 +108,26 @@ def main() -> None:
     args = ap.parse_args()
     cv2.setNumThreads(1)
     rows = []
+    jobs = []
     for name, procam, scene, pattern, dr, noise in scenes(args.quick, args.noise):
         t0 = time.perf_counter()
         img, truth = render_scene(procam, scene, pattern, noise_grey=noise, seed=0)
         print(f"{name}: rendered in {time.perf_counter() - t0:.1f} s", flush=True)
         for labeller in ("epipolar", "paper"):
-            r = evaluate(img, truth, procam, pattern, dr, labeller, args.repeat)
+            r = evaluate(img, truth, procam, pattern, dr, labeller)
             r["noise"] = noise
             rows.append((name, labeller, r))
+            jobs.append((img, procam, pattern, ReconstructOptions(labeller=labeller, depth_min_mm=dr[0], depth_max_mm=dr[1])))
             print(name, labeller, {k: v for k, v in r.items() if k != "warnings"}, flush=True)
+        del truth
+    for (name, labeller, r), ms in zip(rows, time_round_robin(jobs, args.repeat)):
+        r["ms"] = ms
+        print(name, labeller, "ms", {k: round(v, 2) for k, v in ms.items()}, flush=True)
     lines = [
         "# bench_reconstruction",
         "",
         f"Command: `.venv/bin/python -m benchmarks.bench_reconstruction{' --quick' if args.quick else ''} --repeat {args.repeat}`"
-        f" (noise {args.noise} grey levels, cv2.setNumThreads(1), this machine).",
+        f" (noise {args.noise} grey levels, cv2.setNumThreads(1), this machine; times: medians of {args.repeat} rounds over all rows).",
         "Relative error: |p − p_true| / |p_true| in %; >1 %: share of points more than 1 % off (mislabelled);",
         "label ok: labelled junctions within 2 projector px of the true junction; coverage: lit line-centre pixels with a point within 1.5 px.",
         "",
