@@ -129,7 +129,8 @@ def _k_end_line(p_end, first, last, piece, ts, q, sid, trim_px, anchor):
 @njit
 def _k_refine(p_far, o_partner, rows, c, first, last, piece, ts, q, sid, trim_px, anchor):
     """`_refined_crossing` for every far end (p_far, o_partner) in one compiled loop, writing c[rows] in place
-    (the same arithmetic; tests/reconstruction/test_recon_piece_seeds.py compares the two)."""
+    (the same formulas; math.hypot may differ in the last bit, Python's being correctly rounded:
+    tests/reconstruction/test_recon_piece_seeds.py compares the two)."""
     for r in range(p_far.shape[0]):
         ok, ax, ay, ux, uy = _k_end_line(p_far[r], first, last, piece, ts, q, sid, trim_px, anchor)
         if not ok:

@@ -243,3 +243,42 @@ def test_a_piece_beyond_a_silhouette_is_not_labelled_from_one_crossing(confirm_f
         assert stats["far_rejected"] == 1
     else:  # the scenario is the trap: the near end alone names the plate's line 6
         assert np.all(index[trap] == 6.0)
+
+
+def test_compiled_refinement_equals_the_python_one():
+    """`_k_refine` (all far ends in one compiled loop) against `_refined_crossing` (one end at a time), on random
+    straight pieces with trims and anchors that leave some pieces too short (those keep their crossing)."""
+    from reconstruction.piece_seeds import _k_refine, _refined_crossing
+
+    rng = np.random.default_rng(11)
+    n_p = 60
+    lens = rng.integers(2, 14, n_p)
+    piece = np.repeat(np.arange(n_p), lens)
+    n = len(piece)
+    first = np.concatenate(([0], np.cumsum(lens)[:-1])).astype(np.intp)
+    last = (first + lens - 1).astype(np.intp)
+    step = rng.uniform(0.7, 1.3, n)
+    ts = np.zeros(n)
+    q = np.zeros((n, 2))
+    for p in range(n_p):
+        a = rng.uniform(0, np.pi)
+        d = np.array([np.cos(a), np.sin(a)])
+        s = np.cumsum(step[first[p]:last[p] + 1]) - step[first[p]]
+        ts[first[p]:last[p] + 1] = s
+        q[first[p]:last[p] + 1] = rng.uniform(0, 200, 2) + s[:, None] * d + rng.normal(0, 0.2, (lens[p], 2))
+    sid = rng.permutation(n).astype(np.intp)  # trace position -> sample id
+    q_by_id = np.empty_like(q)
+    q_by_id[sid] = q
+    m = 200
+    p_far = np.where(rng.random(m) < 0.5, first[rng.integers(0, n_p, m)], last[rng.integers(0, n_p, m)]).astype(np.int64)
+    o_partner = rng.integers(0, n, m).astype(np.int64)
+    c = rng.uniform(0, 200, (m, 2))
+    for trim, anchor in ((0.0, 3), (2.5, 3), (4.0, 1)):
+        want = c.copy()
+        for r in range(m):
+            want[r] = _refined_crossing(int(p_far[r]), int(o_partner[r]), c[r], first, last, piece, ts, q_by_id, sid, trim, anchor)
+        got = c.copy()
+        _k_refine(p_far, o_partner, np.arange(m, dtype=np.int64), got, first, last, piece, ts, q_by_id, sid, trim, anchor)
+        # the same formulas; Python's math.hypot is correctly rounded, the C library's (numba) not always: last bits
+        np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-12)
+        assert (got != c).any(axis=1).sum() > 20, "most ends are refined"
