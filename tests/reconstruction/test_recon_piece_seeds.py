@@ -273,7 +273,7 @@ def test_compiled_refinement_equals_the_python_one():
     p_far = np.where(rng.random(m) < 0.5, first[rng.integers(0, n_p, m)], last[rng.integers(0, n_p, m)]).astype(np.int64)
     o_partner = rng.integers(0, n, m).astype(np.int64)
     c = rng.uniform(0, 200, (m, 2))
-    for trim, anchor in ((0.0, 3), (2.5, 3), (4.0, 1)):
+    for trim, anchor in ((0.0, 3), (2.5, 3), (3.0, 2)):
         want = c.copy()
         for r in range(m):
             want[r] = _refined_crossing(int(p_far[r]), int(o_partner[r]), c[r], first, last, piece, ts, q_by_id, sid, trim, anchor)
