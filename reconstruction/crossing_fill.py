@@ -41,8 +41,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from reconstruction._jit import njit
+from reconstruction._label_kernels import sample_grid
 from reconstruction.continuation import crossing_gap_px
 from reconstruction.rigmodel import UNLABELLED, RigModel
+
+_NO_TRACE = np.zeros(0, np.intp)  # sample_grid's trace positions are not needed here
 
 
 @dataclass(frozen=True)
@@ -255,45 +258,6 @@ def _curve_r(s, L, ka, ca, kb, cb):
 
 
 @njit
-def _grid(q, keep, cell):
-    """Bucket grid (x0, y0, gw, gh, CSR start, items) of the points q[keep] in cells `cell` px wide."""
-    n = q.shape[0]
-    x0 = np.inf
-    y0 = np.inf
-    x1 = -np.inf
-    y1 = -np.inf
-    for i in range(n):
-        if keep[i]:
-            x0 = min(x0, q[i, 0])
-            y0 = min(y0, q[i, 1])
-            x1 = max(x1, q[i, 0])
-            y1 = max(y1, q[i, 1])
-    if x0 > x1:
-        x0 = 0.0
-        y0 = 0.0
-        x1 = 0.0
-        y1 = 0.0
-    gw = int((x1 - x0) / cell) + 1
-    gh = int((y1 - y0) / cell) + 1
-    cnt = np.zeros(gw * gh + 1, np.intp)
-    cid = np.full(n, -1, np.intp)
-    for i in range(n):
-        if keep[i]:
-            c = int((q[i, 1] - y0) / cell) * gw + int((q[i, 0] - x0) / cell)
-            cid[i] = c
-            cnt[c + 1] += 1
-    for c in range(gw * gh):
-        cnt[c + 1] += cnt[c]
-    items = np.empty(cnt[gw * gh], np.intp)
-    fill = cnt[:-1].copy()
-    for i in range(n):
-        if cid[i] >= 0:
-            items[fill[cid[i]]] = i
-            fill[cid[i]] += 1
-    return x0, y0, gw, gh, cnt, items
-
-
-@njit
 def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_gap, gap_max, half_gap, anchor, max_turn, lateral):
     """Steps 1–3 of the module doc over the ordered labelled samples `order`: the gaps between consecutive
     samples of one line, the two sides' tangent fits and tests, and the crossing in the gap. Returns the
@@ -314,11 +278,11 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
     jkeep = np.zeros(qj.shape[0], np.bool_)
     for j in jsel:
         jkeep[j] = True
-    jx0, jy0, jgw, jgh, jstart, jitems = _grid(qj, jkeep, gcell)
+    jx0, jy0, jgw, jgh, jstart, jitems, _ = sample_grid(qj, jkeep, _NO_TRACE, gcell)
     skeep = np.zeros(qs.shape[0], np.bool_)
     for i in range(qs.shape[0]):
         skeep[i] = (fs[i] == 1 or fs[i] == 2) and np.isfinite(qs[i, 0]) and np.isfinite(qs[i, 1])
-    sx0, sy0, sgw, sgh, sstart, sitems = _grid(qs, skeep, gcell)
+    sx0, sy0, sgw, sgh, sstart, sitems, _ = sample_grid(qs, skeep, _NO_TRACE, gcell)
     for p in range(n - 1):
         a = order[p]
         b = order[p + 1]
