@@ -50,60 +50,11 @@ from reconstruction.rigmodel import RigModel
 _SIN_MIN_CROSSING = float(np.sin(np.deg2rad(20.0)))  # the crossing searches' smallest crossing angle
 
 
-def _end_line(p_end: int, first: np.ndarray, last: np.ndarray, piece: np.ndarray, ts: np.ndarray, q: np.ndarray, sid: np.ndarray,
-              trim_px: float, anchor: int):
-    """The line of a piece's end beyond the crossing's pull: the first sample at least trim_px (along the trace)
-    inside from the end at trace position p_end, and the unit chord to it from the sample `anchor` places
-    further in, as (x, y, ux, uy). None when the piece is too short."""
-    p = piece[p_end]
-    step = 1 if p_end == first[p] else -1
-    stop = int(last[p] if step == 1 else first[p])
-    t0 = float(ts[p_end])
-    j = int(p_end)
-    while j != stop and abs(float(ts[j]) - t0) < trim_px:
-        j += step
-    if abs(float(ts[j]) - t0) < trim_px:
-        return None
-    j2 = j
-    for _ in range(anchor):
-        if j2 == stop:
-            break
-        j2 += step
-    ax, ay = float(q[sid[j], 0]), float(q[sid[j], 1])
-    dx, dy = ax - float(q[sid[j2], 0]), ay - float(q[sid[j2], 1])
-    L = math.hypot(dx, dy)
-    if L < 1.5:
-        return None
-    return ax, ay, dx / L, dy / L
-
-
-def _refined_crossing(p_far: int, o_partner: int, c0: np.ndarray, first, last, piece, ts, q, sid, trim_px: float, anchor: int):
-    """The far crossing from both pieces' end lines beyond the crossing's pull (`_end_line`): the far end of this
-    piece and the end of the partner's piece nearer c0. c0 when either piece is too short or the lines are
-    nearly parallel."""
-    own = _end_line(p_far, first, last, piece, ts, q, sid, trim_px, anchor)
-    if own is None:
-        return c0
-    pp = piece[o_partner]
-    f, g = int(first[pp]), int(last[pp])
-    cx, cy = float(c0[0]), float(c0[1])
-    df = math.hypot(float(q[sid[f], 0]) - cx, float(q[sid[f], 1]) - cy)
-    dg = math.hypot(float(q[sid[g], 0]) - cx, float(q[sid[g], 1]) - cy)
-    other = _end_line(f if df <= dg else g, first, last, piece, ts, q, sid, trim_px, anchor)
-    if other is None:
-        return c0
-    ax, ay, ux, uy = own
-    bx, by, vx, vy = other
-    den = ux * vy - uy * vx
-    if abs(den) < _SIN_MIN_CROSSING:
-        return c0
-    t = ((bx - ax) * vy - (by - ay) * vx) / den
-    return np.array([ax + t * ux, ay + t * uy])
-
-
 @njit
 def _k_end_line(p_end, first, last, piece, ts, q, sid, trim_px, anchor):
-    """`_end_line` compiled: (ok, x, y, ux, uy)."""
+    """The line of a piece's end beyond the crossing's pull: the first sample at least trim_px (along the trace)
+    inside from the end at trace position p_end, and the unit chord to it from the sample `anchor` places
+    further in: (ok, x, y, ux, uy), ok False when the piece is too short."""
     p = piece[p_end]
     step = 1 if p_end == first[p] else -1
     stop = last[p] if step == 1 else first[p]
@@ -128,9 +79,11 @@ def _k_end_line(p_end, first, last, piece, ts, q, sid, trim_px, anchor):
 
 @njit
 def _k_refine(p_far, o_partner, rows, c, first, last, piece, ts, q, sid, trim_px, anchor):
-    """`_refined_crossing` for every far end (p_far, o_partner) in one compiled loop, writing c[rows] in place
-    (the same formulas; math.hypot may differ in the last bit, Python's being correctly rounded:
-    tests/reconstruction/test_recon_piece_seeds.py compares the two)."""
+    """The far crossings from both pieces' end lines beyond the crossing's pull (`_k_end_line`): for each far end
+    p_far[r], the intersection of its piece's end line with that of the partner's piece (the piece of trace
+    position o_partner[r]) at its end nearer the crossing, written to c[rows[r]] in place; c unchanged where
+    either piece is too short or the lines are nearly parallel. tests/reconstruction/test_recon_piece_seeds.py
+    compares it with the per-end Python code it replaced (last bits: Python's math.hypot is correctly rounded)."""
     for r in range(p_far.shape[0]):
         ok, ax, ay, ux, uy = _k_end_line(p_far[r], first, last, piece, ts, q, sid, trim_px, anchor)
         if not ok:

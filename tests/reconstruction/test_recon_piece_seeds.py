@@ -4,6 +4,7 @@ on their own light sheet (decision 0089, reconstruction.piece_seeds), against si
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import cv2
 import numpy as np
@@ -11,6 +12,7 @@ import pytest
 
 from reconstruction.extraction import ExtractOptions, extract_grid, sigma_for
 from reconstruction.labelling import LabelOptions, TraceOptions, label_epipolar, label_samples
+from reconstruction.piece_seeds import _SIN_MIN_CROSSING
 from reconstruction.rigmodel import UNLABELLED, rig_model
 
 
@@ -245,10 +247,61 @@ def test_a_piece_beyond_a_silhouette_is_not_labelled_from_one_crossing(confirm_f
         assert np.all(index[trap] == 6.0)
 
 
+def _end_line(p_end: int, first: np.ndarray, last: np.ndarray, piece: np.ndarray, ts: np.ndarray, q: np.ndarray, sid: np.ndarray,
+              trim_px: float, anchor: int):
+    """The line of a piece's end beyond the crossing's pull: the first sample at least trim_px (along the trace)
+    inside from the end at trace position p_end, and the unit chord to it from the sample `anchor` places
+    further in, as (x, y, ux, uy). None when the piece is too short."""
+    p = piece[p_end]
+    step = 1 if p_end == first[p] else -1
+    stop = int(last[p] if step == 1 else first[p])
+    t0 = float(ts[p_end])
+    j = int(p_end)
+    while j != stop and abs(float(ts[j]) - t0) < trim_px:
+        j += step
+    if abs(float(ts[j]) - t0) < trim_px:
+        return None
+    j2 = j
+    for _ in range(anchor):
+        if j2 == stop:
+            break
+        j2 += step
+    ax, ay = float(q[sid[j], 0]), float(q[sid[j], 1])
+    dx, dy = ax - float(q[sid[j2], 0]), ay - float(q[sid[j2], 1])
+    L = math.hypot(dx, dy)
+    if L < 1.5:
+        return None
+    return ax, ay, dx / L, dy / L
+
+
+def _refined_crossing(p_far: int, o_partner: int, c0: np.ndarray, first, last, piece, ts, q, sid, trim_px: float, anchor: int):
+    """The per-end Python code `_k_refine` replaced (decision 0089): the far crossing from both pieces' end lines beyond the crossing's pull (`_end_line`): the far end of this
+    piece and the end of the partner's piece nearer c0. c0 when either piece is too short or the lines are
+    nearly parallel."""
+    own = _end_line(p_far, first, last, piece, ts, q, sid, trim_px, anchor)
+    if own is None:
+        return c0
+    pp = piece[o_partner]
+    f, g = int(first[pp]), int(last[pp])
+    cx, cy = float(c0[0]), float(c0[1])
+    df = math.hypot(float(q[sid[f], 0]) - cx, float(q[sid[f], 1]) - cy)
+    dg = math.hypot(float(q[sid[g], 0]) - cx, float(q[sid[g], 1]) - cy)
+    other = _end_line(f if df <= dg else g, first, last, piece, ts, q, sid, trim_px, anchor)
+    if other is None:
+        return c0
+    ax, ay, ux, uy = own
+    bx, by, vx, vy = other
+    den = ux * vy - uy * vx
+    if abs(den) < _SIN_MIN_CROSSING:
+        return c0
+    t = ((bx - ax) * vy - (by - ay) * vx) / den
+    return np.array([ax + t * ux, ay + t * uy])
+
+
 def test_compiled_refinement_equals_the_python_one():
     """`_k_refine` (all far ends in one compiled loop) against `_refined_crossing` (one end at a time), on random
     straight pieces with trims and anchors that leave some pieces too short (those keep their crossing)."""
-    from reconstruction.piece_seeds import _k_refine, _refined_crossing
+    from reconstruction.piece_seeds import _k_refine
 
     rng = np.random.default_rng(11)
     n_p = 60
