@@ -93,53 +93,77 @@ def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross):
 
     Returns n_candidates, the line samples in row-major order (u, v int64; ox, oy offset to the ridge,
     nx, ny unit normal, strength: float32) — kept when the ridge passes through the pixel's square — and
-    the crossing candidates (xu, xv int64, xs = −λ2 float32), row-major too.
-
-    How (decision 0069): per row, the Laplacian test into a byte per pixel (a vectorised loop), then the
-    candidates of each 8-byte word with a flag, branch-free (every pixel of the word written, the count
-    advanced by its flag); then blocks of candidates: their 3×3 neighbourhoods gathered, `steger_block`
-    (vectorised), the places of the kept ones listed branch-free (each place written, the count advanced
-    by the flag), and only those copied out.
-    """
+    the crossing candidates (xu, xv int64, xs = −λ2 float32), row-major too. The work is `ridge_pass_into`'s
+    (this allocates its outputs for the worst case, every inner pixel, and returns views)."""
     H, W = G.shape
-    cand = np.empty(H * W + 8, np.int32)
+    cap = max(H - 2, 0) * max(W - 2, 0)
+    u = np.empty(cap, np.int64)
+    v = np.empty(cap, np.int64)
+    ox = np.empty(cap, np.float32)
+    oy = np.empty(cap, np.float32)
+    nx = np.empty(cap, np.float32)
+    ny = np.empty(cap, np.float32)
+    st = np.empty(cap, np.float32)
+    xu = np.empty(cap, np.int64)
+    xv = np.empty(cap, np.int64)
+    xs = np.empty(cap, np.float32)
+    n, m, mx = ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs)
+    return n, u[:m], v[:m], ox[:m], oy[:m], nx[:m], ny[:m], st[:m], xu[:mx], xv[:mx], xs[:mx]
+
+
+@njit(error_model="numpy")
+def ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs):
+    """`ridge_pass` into the caller's arrays (decision 0091: extraction passes per-thread scratch arrays).
+
+    u, v, ox, oy, nx, ny, st: (C,) the line samples' outputs (int64, int64, float32 ×5); xu, xv, xs: (C',)
+    the crossing candidates' (int64, int64, float32). Returns (n_candidates, m line samples, mx crossing
+    candidates) written to the first m / mx places; m = −1 when an output ran out of room (C or C' too
+    small: call again with larger arrays; the outputs are then partial).
+
+    How (decisions 0069, 0091): row by row, the Laplacian test into a byte per pixel (a vectorised loop),
+    then the candidates of each 8-byte word with a flag, branch-free (every pixel of the word written, the
+    count advanced by its flag); as soon as a row leaves at least `_STEGER_BLOCK` candidates pending, they
+    are processed as one block while their rows are still in cache: their 3×3 neighbourhoods gathered,
+    `steger_block` (vectorised), the places of the kept ones listed branch-free, and only those copied
+    out. The blocks' boundaries do not change any value (each candidate is computed on its own)."""
+    H, W = G.shape
+    B = _STEGER_BLOCK
+    cap = B + W + 8  # pending candidates never exceed B − 1 + one row's
+    cand = np.empty(cap, np.int32)
     flag = np.zeros((W + 7) // 8 * 8, np.uint8)
     flag8 = flag.view(np.uint64)
-    n = 0
-    for r in range(1, H - 1):
-        a = G[r - 1]
-        b = G[r]
-        d = G[r + 1]
-        for c in range(1, W - 1):  # flag[0] and flag[W - 1 ...] stay 0: border pixels are never candidates
-            flag[c] = ((((a[c] + b[c - 1]) + _F32_M4 * b[c]) + b[c + 1]) + d[c]) < thr_lap
-        base = r * W
-        for w in range(len(flag8)):
-            if flag8[w] != 0:
-                for c in range(8 * w, 8 * w + 8):
-                    cand[n] = base + c
-                    n += flag[c]
-    u = np.empty(n, np.int64)
-    v = np.empty(n, np.int64)
-    ox = np.empty(n, np.float32)
-    oy = np.empty(n, np.float32)
-    nx = np.empty(n, np.float32)
-    ny = np.empty(n, np.float32)
-    st = np.empty(n, np.float32)
-    xu = np.empty(n, np.int64)
-    xv = np.empty(n, np.int64)
-    xs = np.empty(n, np.float32)
-    B = _STEGER_BLOCK
-    V = np.empty((9, B), np.float32)
-    O = np.empty((8, B), np.float32)
-    il = np.empty(B, np.int64)  # kept line samples' and crossing candidates' places in a block
-    ix = np.empty(B, np.int64)
+    V = np.empty((9, cap), np.float32)
+    O = np.empty((8, cap), np.float32)
+    il = np.empty(cap, np.int64)  # kept line samples' and crossing candidates' places in a block
+    ix = np.empty(cap, np.int64)
     g = G.ravel()
+    cap_l = u.shape[0]
+    cap_x = xu.shape[0]
+    n = 0
+    npend = 0
     m = 0
     mx = 0
-    for k0 in range(0, n, B):
-        nb = min(B, n - k0)
+    for r in range(1, H):
+        if r < H - 1:
+            a = G[r - 1]
+            b = G[r]
+            d = G[r + 1]
+            for c in range(1, W - 1):  # flag[0] and flag[W - 1 ...] stay 0: border pixels are never candidates
+                flag[c] = ((((a[c] + b[c - 1]) + _F32_M4 * b[c]) + b[c + 1]) + d[c]) < thr_lap
+            base = r * W
+            for w in range(len(flag8)):
+                if flag8[w] != 0:
+                    for c in range(8 * w, 8 * w + 8):
+                        cand[npend] = base + c
+                        npend += flag[c]
+            if npend < B:
+                continue
+        # (after the last inner row, r = H − 1: whatever is pending)
+        nb = npend
+        n += nb
+        npend = 0
         for j in range(nb):
-            i = cand[k0 + j]
+            i = cand[j]
             V[0, j] = g[i]
             V[1, j] = g[i + 1]
             V[2, j] = g[i - 1]
@@ -157,9 +181,11 @@ def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross):
             kl += O[7, j] != 0
             ix[kx] = j
             kx += O[6, j] != 0
+        if m + kl > cap_l or mx + kx > cap_x:
+            return n, -1, mx
         for t in range(kx):
             j = ix[t]
-            i = cand[k0 + j]
+            i = cand[j]
             vv = i // W
             xu[mx] = i - vv * W
             xv[mx] = vv
@@ -167,7 +193,7 @@ def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross):
             mx += 1
         for t in range(kl):
             j = il[t]
-            i = cand[k0 + j]
+            i = cand[j]
             vv = i // W
             u[m] = i - vv * W
             v[m] = vv
@@ -177,9 +203,7 @@ def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross):
             ny[m] = O[3, j]
             st[m] = O[4, j]
             m += 1
-    # views, not copies: albedo_and_families copies what it keeps (the next free place never passes the
-    # element being read)
-    return n, u[:m], v[:m], ox[:m], oy[:m], nx[:m], ny[:m], st[:m], xu[:mx], xv[:mx], xs[:mx]
+    return n, m, mx
 
 
 @njit

@@ -227,6 +227,28 @@ def _work_buffer(shape: tuple[int, int]) -> np.ndarray:
     return buf
 
 
+def _ridges(G: np.ndarray, thr_lap, thr, neg_aniso, neg_cross) -> tuple:
+    """`_extract_kernels.ridge_pass` with its outputs in arrays owned by the calling thread (views of them
+    are returned; `albedo_and_families` copies what it keeps, so nothing returned by `extract_grid` refers
+    to them). The arrays start at 1/16 of the image's pixels and double when a frame needs more: a fresh set
+    per frame would be page-faulted in every time (decision 0091)."""
+    H, W = G.shape
+    most = max(H - 2, 0) * max(W - 2, 0)  # every inner pixel
+    bufs = getattr(_workspace, "ridge", None)
+    cap = max(min(4096, most), (H * W) // 16) if bufs is None else len(bufs[0])
+    while True:
+        if bufs is None or len(bufs[0]) < cap:
+            i64, f32 = np.int64, np.float32
+            bufs = tuple(np.empty(cap, t) for t in (i64, i64, f32, f32, f32, f32, f32, i64, i64, f32))
+            _workspace.ridge = bufs
+        n, m, mx = _k.ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, *bufs)
+        if m >= 0:
+            break
+        cap = min(2 * cap, most)
+    u, v, ox, oy, nx, ny, st, xu, xv, xs = bufs
+    return n, u[:m], v[:m], ox[:m], oy[:m], nx[:m], ny[:m], st[:m], xu[:mx], xv[:mx], xs[:mx]
+
+
 def _smooth(image: np.ndarray, sigma: float, scale: int, *, out: np.ndarray | None = None) -> np.ndarray:
     """The working image: Gaussian-smoothed float32 (H, W), or at half resolution (scale 2: pixel k of
     the result is full-resolution pixel 2k) with the same total smoothing. out: (H, W) float32 to write
@@ -299,7 +321,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     # --- 1–2. ridge candidates and Steger samples --------------------------------------------------------
     noise = max(noise_grey, 0.5) * _laplacian_noise_gain(round(sigma, 3), scale)
     thr = options.threshold_sigma * noise
-    n_cand, u, v, ox, oy, nx, ny, strength, xu, xv, xs = _k.ridge_pass(
+    n_cand, u, v, ox, oy, nx, ny, strength, xu, xv, xs = _ridges(
         np.ascontiguousarray(G, np.float32), np.float32(-0.5 * thr), np.float32(thr), np.float32(-options.anisotropy),
         np.float32(-(options.crossing_anisotropy if scale == 1 else options.anisotropy)),
     )
