@@ -774,25 +774,32 @@ def junction_seeds(q, fam, valid, near_other, qj, labelled, lab, jdir, radius, s
     grid = np.full(gh * gw, -1, np.intp)
     for k in range(m):
         grid[cpy[k] * gw + cpx[k]] = k
-    # each cell's candidates: the owners of its 3×3 cells, in the order the cells are looked at
+    # each cell's candidates: the owners of its 3×3 cells, in the order the cells are looked at (the
+    # owned cells listed once, in increasing order: the passes below visit only them)
     ncell = gh * gw
-    cstart = np.zeros(ncell + 1, np.intp)
+    occ = np.empty(m, np.intp)
+    n_occ = 0
     for cell in range(ncell):
         if grid[cell] >= 0:
-            for sy in range(-1, 2):
-                for sx in range(-1, 2):
-                    cstart[cell - sy * gw - sx + 1] += 1
+            occ[n_occ] = cell
+            n_occ += 1
+    cstart = np.zeros(ncell + 1, np.intp)
+    for o in range(n_occ):
+        cell = occ[o]
+        for sy in range(-1, 2):
+            for sx in range(-1, 2):
+                cstart[cell - sy * gw - sx + 1] += 1
     for cell in range(ncell):
         cstart[cell + 1] += cstart[cell]
     cfill = cstart[:-1].copy()
     cand = np.empty(cstart[ncell], np.intp)
     for sy in range(-1, 2):
         for sx in range(-1, 2):
-            for cell in range(ncell):
-                if grid[cell] >= 0:
-                    cq = cell - sy * gw - sx
-                    cand[cfill[cq]] = grid[cell]
-                    cfill[cq] += 1
+            for o in range(n_occ):
+                cell = occ[o]
+                cq = cell - sy * gw - sx
+                cand[cfill[cq]] = grid[cell]
+                cfill[cq] += 1
     snapped = 0
     for pid in range(P):
         if not valid[pid]:

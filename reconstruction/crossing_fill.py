@@ -279,10 +279,8 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
     for j in jsel:
         jkeep[j] = True
     jx0, jy0, jgw, jgh, jstart, jitems, _ = sample_grid(qj, jkeep, _NO_TRACE, gcell)
-    skeep = np.zeros(qs.shape[0], np.bool_)
-    for i in range(qs.shape[0]):
-        skeep[i] = (fs[i] == 1 or fs[i] == 2) and np.isfinite(qs[i, 0]) and np.isfinite(qs[i, 1])
-    sx0, sy0, sgw, sgh, sstart, sitems, _ = sample_grid(qs, skeep, _NO_TRACE, gcell)
+    sx0, sy0, sgw, sgh, sstart, smid, sitems = _family_grid(qs, fs, gcell)
+    hits = np.empty(sitems.shape[0], np.intp)  # the other family's samples in the disc, in search order
     for p in range(n - 1):
         a = order[p]
         b = order[p + 1]
@@ -312,7 +310,10 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
             continue
         ux = dx / L
         uy = dy / L
-        fit = np.empty(4)
+        ka = 0.0
+        ca = 0.0
+        kb = 0.0
+        cb = 0.0
         for side in range(2):
             sm = 0.0
             rm = 0.0
@@ -337,18 +338,22 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
                 ok = False
                 break
             kk = sxr / sxx
-            fit[2 * side] = kk
-            fit[2 * side + 1] = rm - kk * sm
+            cc = rm - kk * sm
+            if side == 0:
+                ka = kk
+                ca = cc
+            else:
+                kb = kk
+                cb = cc
             for k in range(anchor):
                 sid = order[p - k] if side == 0 else order[p + 1 + k]
                 ex = q[sid, 0] - q[a, 0]
                 ey = q[sid, 1] - q[a, 1]
-                if abs(-ex * uy + ey * ux - (kk * (ex * ux + ey * uy) + fit[2 * side + 1])) > lateral:
+                if abs(-ex * uy + ey * ux - (kk * (ex * ux + ey * uy) + cc)) > lateral:
                     ok = False
         if not ok:
             why[2] += 1
             continue
-        ka, ca, kb, cb = fit[0], fit[1], fit[2], fit[3]
         if abs(math.atan(ka) - math.atan(kb)) > max_turn:
             why[3] += 1
             continue
@@ -397,23 +402,31 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
             acc[G] = True
             G += 1
             continue
-        # else: the other family's samples within L/2 + σ of the gap's middle, one straight run
+        # else: the other family's samples within L/2 + σ of the gap's middle, one straight run. Cells: the
+        # 3×3 around the middle's cell that the disc can reach (a sample in the disc lies in the cells of
+        # its bounding box, widened by 1e-6 px against rounding); items: the other family's part of each
+        # cell, in the order of the grid of both families (so the sums below add in the same order)
         rad = 0.5 * L + sigma
         gx = int((mx - sx0) / gcell)
         gy = int((my - sy0) / gcell)
+        cx_lo = max(gx - 1, 0, int(math.floor((mx - rad - 1e-6 - sx0) / gcell)))
+        cx_hi = min(gx + 1, sgw - 1, int(math.floor((mx + rad + 1e-6 - sx0) / gcell)))
+        cy_lo = max(gy - 1, 0, int(math.floor((my - rad - 1e-6 - sy0) / gcell)))
+        cy_hi = min(gy + 1, sgh - 1, int(math.floor((my + rad + 1e-6 - sy0) / gcell)))
         cnt = 0
         sx = 0.0
         sy = 0.0
-        for cy in range(max(gy - 1, 0), min(gy + 2, sgh)):
-            for cx in range(max(gx - 1, 0), min(gx + 2, sgw)):
+        for cy in range(cy_lo, cy_hi + 1):
+            for cx in range(cx_lo, cx_hi + 1):
                 c = cy * sgw + cx
-                for t in range(sstart[c], sstart[c + 1]):
+                t0 = smid[c] if f == 1 else sstart[c]
+                t1 = sstart[c + 1] if f == 1 else smid[c]
+                for t in range(t0, t1):
                     i = sitems[t]
-                    if fs[i] == f:
-                        continue
                     ex = qs[i, 0] - mx
                     ey = qs[i, 1] - my
                     if ex * ex + ey * ey <= rad * rad:
+                        hits[cnt] = i
                         cnt += 1
                         sx += qs[i, 0]
                         sy += qs[i, 1]
@@ -423,21 +436,13 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
             cxx = 0.0
             cxy = 0.0
             cyy = 0.0
-            for cy in range(max(gy - 1, 0), min(gy + 2, sgh)):
-                for cx in range(max(gx - 1, 0), min(gx + 2, sgw)):
-                    c = cy * sgw + cx
-                    for t in range(sstart[c], sstart[c + 1]):
-                        i = sitems[t]
-                        if fs[i] == f:
-                            continue
-                        ex = qs[i, 0] - mx
-                        ey = qs[i, 1] - my
-                        if ex * ex + ey * ey <= rad * rad:
-                            ex = qs[i, 0] - cxm
-                            ey = qs[i, 1] - cym
-                            cxx += ex * ex
-                            cxy += ex * ey
-                            cyy += ey * ey
+            for h in range(cnt):
+                i = hits[h]
+                ex = qs[i, 0] - cxm
+                ey = qs[i, 1] - cym
+                cxx += ex * ex
+                cxy += ex * ey
+                cyy += ey * ey
             cxx /= cnt
             cxy /= cnt
             cyy /= cnt
@@ -481,3 +486,66 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
                     c_q[G, 1] = q[a, 1] + s * uy + r * ux
         G += 1
     return n_gaps, gaps[:G], acc[:G], c_q[:G], why
+
+
+@njit
+def _family_grid(qs, fs, cell):
+    """The bucket grid of `_label_kernels.sample_grid` over the samples of family 1 or 2 with a finite
+    position (the same origin, cells and clamping), each cell's items split by family: x0, y0, gw, gh,
+    start (gw·gh + 1,), mid (gw·gh,), items; cell c holds family 1 in items[start[c]:mid[c]] and family 2 in
+    items[mid[c]:start[c + 1]], each in increasing sample id (the order of sample_grid's cell without the
+    other family)."""
+    P = qs.shape[0]
+    x0 = np.inf
+    y0 = np.inf
+    x1 = -np.inf
+    y1 = -np.inf
+    nv = 0
+    for s in range(P):
+        if (fs[s] == 1 or fs[s] == 2) and np.isfinite(qs[s, 0]) and np.isfinite(qs[s, 1]):
+            x0 = min(x0, qs[s, 0])
+            y0 = min(y0, qs[s, 1])
+            x1 = max(x1, qs[s, 0])
+            y1 = max(y1, qs[s, 1])
+            nv += 1
+    if nv == 0:
+        x0 = 0.0
+        y0 = 0.0
+        x1 = 0.0
+        y1 = 0.0
+    gw = int((x1 - x0) / cell) + 1
+    gh = int((y1 - y0) / cell) + 1
+    nc = gw * gh
+    key = np.empty(P, np.intp)
+    n1 = np.zeros(nc, np.intp)
+    start = np.zeros(nc + 1, np.intp)
+    for s in range(P):
+        if (fs[s] == 1 or fs[s] == 2) and np.isfinite(qs[s, 0]) and np.isfinite(qs[s, 1]):
+            cx = min(max(int(math.floor((qs[s, 0] - x0) / cell)), 0), gw - 1)
+            cy = min(max(int(math.floor((qs[s, 1] - y0) / cell)), 0), gh - 1)
+            c = cy * gw + cx
+            key[s] = c
+            start[c + 1] += 1
+            if fs[s] == 1:
+                n1[c] += 1
+        else:
+            key[s] = -1
+    for c in range(nc):
+        start[c + 1] += start[c]
+    fill1 = np.empty(nc, np.intp)
+    mid = np.empty(nc, np.intp)
+    for c in range(nc):
+        fill1[c] = start[c]
+        mid[c] = start[c] + n1[c]
+    fill2 = mid.copy()
+    items = np.empty(nv, np.intp)
+    for s in range(P):
+        c = key[s]
+        if c >= 0:
+            if fs[s] == 1:
+                items[fill1[c]] = s
+                fill1[c] += 1
+            else:
+                items[fill2[c]] = s
+                fill2[c] += 1
+    return x0, y0, gw, gh, start, mid, items
