@@ -184,6 +184,8 @@ def crossing_in_gap(q, fam, e, f_e, li, lj, gap, x0, y0, cell, gw, gh, start, it
     r2max = np.empty(3)
     for f in range(3):
         r2max[f] = rmax[f] * rmax[f]
+    nc = gw * gh
+    split = start.shape[0] == 2 * nc + 1  # a grid from `sample_grid_split`: read the family's part only
     for s in range(nl):
         f = need[s]
         qx = mid[s, 0]
@@ -195,7 +197,14 @@ def crossing_in_gap(q, fam, e, f_e, li, lj, gap, x0, y0, cell, gw, gh, start, it
         for yy in range(max(cy - ring, 0), min(cy + ring + 1, gh)):
             for xx in range(max(cx - ring, 0), min(cx + ring + 1, gw)):
                 bk = yy * gw + xx
-                for t in range(start[bk], start[bk + 1]):
+                t0 = start[bk]
+                t1 = start[bk + 1]
+                if split:
+                    if f == 1:
+                        t1 = start[nc + 1 + bk]
+                    elif f == 2:
+                        t0 = start[nc + 1 + bk]
+                for t in range(t0, t1):
                     p = items[t]
                     if fam[p] != f:
                         continue

@@ -648,7 +648,7 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
     if n_pieces == 0:
         return 0
     if grid is None:
-        grid = _sample_grid(q, (fam == 1) | (fam == 2), sid, radius_px)
+        grid = _sample_grid(q, (fam == 1) | (fam == 2), sid, radius_px, fam)
     total = 0
     labelled_none = np.zeros(0, np.bool_)
     sin_min = _SIN_20
@@ -712,10 +712,14 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
     return total
 
 
-def _sample_grid(q: np.ndarray, valid: np.ndarray, sid: np.ndarray, cell_px: float) -> tuple:
+def _sample_grid(q: np.ndarray, valid: np.ndarray, sid: np.ndarray, cell_px: float, fam: np.ndarray | None = None) -> tuple:
     """The bucket grid of the valid samples in cells cell_px wide that the crossing searches share, with
-    each sample's trace position (`_label_kernels.sample_grid`): (x0, y0, cell, gw, gh, start, items, pos_of)."""
-    x0, y0, gw, gh, start, items, pos_of = _k.sample_grid(q, valid, sid, float(cell_px))
+    each sample's trace position (`_label_kernels.sample_grid`): (x0, y0, cell, gw, gh, start, items, pos_of).
+    With fam (P,): each cell's items split by family (`_label_kernels.sample_grid_split`, decision 0090)."""
+    if fam is None:
+        x0, y0, gw, gh, start, items, pos_of = _k.sample_grid(q, valid, sid, float(cell_px))
+    else:
+        x0, y0, gw, gh, start, items, pos_of = _k.sample_grid_split(q, valid, fam, sid, float(cell_px))
     return float(x0), float(y0), float(cell_px), int(gw), int(gh), start, items, pos_of
 
 
@@ -875,7 +879,7 @@ def label_samples(
             if options.continue_gap_deg > 0:
                 reach_cont = max(reach_cont, cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                      min_angle_deg=options.continue_gap_deg))
-            grid = _sample_grid(q, valid, sid, model.junction_step_cam_px * max(options.cross_radius, options.continue_reach))
+            grid = _sample_grid(q, valid, sid, model.junction_step_cam_px * max(options.cross_radius, options.continue_reach), fam)
         cross_state: dict = {}  # the crossing searches' results, carried to the round after the continuation
         if options.cross_pieces and model is not None:
             stats["samples_from_crossings"] = _crossing_seeds(

@@ -158,6 +158,8 @@ def line_goes_on(c, e, te, sign, fe, q, fam, lateral_px, x0, y0, cell, gw, gh, s
     E = c.shape[0]
     out = np.zeros(E, np.bool_)
     beyond = np.full(E, -1, np.intp)
+    nc = gw * gh
+    split = start.shape[0] == 2 * nc + 1  # a grid from `sample_grid_split`: read the family's part only
     for r in range(E):
         dx = sign[r] * te[r, 0]
         dy = sign[r] * te[r, 1]
@@ -169,7 +171,14 @@ def line_goes_on(c, e, te, sign, fe, q, fam, lateral_px, x0, y0, cell, gw, gh, s
         for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
             for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
                 b = yy * gw + xx
-                for t in range(start[b], start[b + 1]):
+                t0 = start[b]
+                t1 = start[b + 1]
+                if split:
+                    if fe[r] == 1:
+                        t1 = start[nc + 1 + b]
+                    elif fe[r] == 2:
+                        t0 = start[nc + 1 + b]
+                for t in range(t0, t1):
                     s = items[t]
                     if fam[s] != fe[r]:
                         continue
