@@ -402,50 +402,10 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
             acc[G] = True
             G += 1
             continue
-        # else: the other family's samples within L/2 + σ of the gap's middle, one straight run. Cells: the
-        # 3×3 around the middle's cell that the disc can reach (a sample in the disc lies in the cells of
-        # its bounding box, widened by 1e-6 px against rounding); items: the other family's part of each
-        # cell, in the order of the grid of both families (so the sums below add in the same order)
+        # else: the other family's samples within L/2 + σ of the gap's middle, one straight run
         rad = 0.5 * L + sigma
-        gx = int((mx - sx0) / gcell)
-        gy = int((my - sy0) / gcell)
-        cx_lo = max(gx - 1, 0, int(math.floor((mx - rad - 1e-6 - sx0) / gcell)))
-        cx_hi = min(gx + 1, sgw - 1, int(math.floor((mx + rad + 1e-6 - sx0) / gcell)))
-        cy_lo = max(gy - 1, 0, int(math.floor((my - rad - 1e-6 - sy0) / gcell)))
-        cy_hi = min(gy + 1, sgh - 1, int(math.floor((my + rad + 1e-6 - sy0) / gcell)))
-        cnt = 0
-        sx = 0.0
-        sy = 0.0
-        for cy in range(cy_lo, cy_hi + 1):
-            for cx in range(cx_lo, cx_hi + 1):
-                c = cy * sgw + cx
-                t0 = smid[c] if f == 1 else sstart[c]
-                t1 = sstart[c + 1] if f == 1 else smid[c]
-                for t in range(t0, t1):
-                    i = sitems[t]
-                    ex = qs[i, 0] - mx
-                    ey = qs[i, 1] - my
-                    if ex * ex + ey * ey <= rad * rad:
-                        hits[cnt] = i
-                        cnt += 1
-                        sx += qs[i, 0]
-                        sy += qs[i, 1]
+        cnt, cxm, cym, cxx, cxy, cyy = _other_run(mx, my, rad, f, qs, sx0, sy0, gcell, sgw, sgh, sstart, smid, sitems, hits)
         if cnt >= 4:
-            cxm = sx / cnt
-            cym = sy / cnt
-            cxx = 0.0
-            cxy = 0.0
-            cyy = 0.0
-            for h in range(cnt):
-                i = hits[h]
-                ex = qs[i, 0] - cxm
-                ey = qs[i, 1] - cym
-                cxx += ex * ex
-                cxy += ex * ey
-                cyy += ey * ey
-            cxx /= cnt
-            cxy /= cnt
-            cyy /= cnt
             tr = 0.5 * (cxx + cyy)
             det = math.sqrt(max(0.25 * (cxx - cyy) ** 2 + cxy * cxy, 0.0))
             lam_min = tr - det
@@ -549,3 +509,52 @@ def _family_grid(qs, fs, cell):
                 items[fill2[c]] = s
                 fill2[c] += 1
     return x0, y0, gw, gh, start, mid, items
+
+
+@njit
+def _other_run(mx, my, rad, f, qs, x0, y0, cell, gw, gh, start, mid, items, hits):
+    """`_k_gaps`' step 3 search: the samples of family 3 − f (f ∈ {1, 2}) within rad of (mx, my) on the
+    grid of `_family_grid`: their number, mean (x, y) and covariance (xx, xy, yy) (divided by the
+    number; only computed from 4 samples on). The sums add the samples in the order of the 3×3 cells
+    around (mx, my)'s cell of the grid of both families (rows, then columns, then sample id), as a
+    search of that grid that skips family f does; only the cells the disc's bounding box reaches (widened
+    by 1e-6 px against rounding) and only the family's part of each are read. hits: scratch (≥ the number
+    of items), the found samples in order."""
+    gx = int((mx - x0) / cell)
+    gy = int((my - y0) / cell)
+    cx_lo = max(gx - 1, 0, int(math.floor((mx - rad - 1e-6 - x0) / cell)))
+    cx_hi = min(gx + 1, gw - 1, int(math.floor((mx + rad + 1e-6 - x0) / cell)))
+    cy_lo = max(gy - 1, 0, int(math.floor((my - rad - 1e-6 - y0) / cell)))
+    cy_hi = min(gy + 1, gh - 1, int(math.floor((my + rad + 1e-6 - y0) / cell)))
+    cnt = 0
+    sx = 0.0
+    sy = 0.0
+    for cy in range(cy_lo, cy_hi + 1):
+        for cx in range(cx_lo, cx_hi + 1):
+            c = cy * gw + cx
+            t0 = mid[c] if f == 1 else start[c]
+            t1 = start[c + 1] if f == 1 else mid[c]
+            for t in range(t0, t1):
+                i = items[t]
+                ex = qs[i, 0] - mx
+                ey = qs[i, 1] - my
+                if ex * ex + ey * ey <= rad * rad:
+                    hits[cnt] = i
+                    cnt += 1
+                    sx += qs[i, 0]
+                    sy += qs[i, 1]
+    if cnt < 4:
+        return cnt, 0.0, 0.0, 0.0, 0.0, 0.0
+    cxm = sx / cnt
+    cym = sy / cnt
+    cxx = 0.0
+    cxy = 0.0
+    cyy = 0.0
+    for h in range(cnt):
+        i = hits[h]
+        ex = qs[i, 0] - cxm
+        ey = qs[i, 1] - cym
+        cxx += ex * ex
+        cxy += ex * ey
+        cyy += ey * ey
+    return cnt, cxm, cym, cxx / cnt, cxy / cnt, cyy / cnt
