@@ -94,21 +94,26 @@ def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross):
     Returns n_candidates, the line samples in row-major order (u, v int64; ox, oy offset to the ridge,
     nx, ny unit normal, strength: float32) — kept when the ridge passes through the pixel's square — and
     the crossing candidates (xu, xv int64, xs = −λ2 float32), row-major too. The work is `ridge_pass_into`'s
-    (this allocates its outputs for the worst case, every inner pixel, and returns views)."""
+    (this allocates its outputs, 1/16 of the pixels at first, doubled while they run out of room, and
+    returns views; `extraction._ridges` keeps them per thread instead)."""
     H, W = G.shape
-    cap = max(H - 2, 0) * max(W - 2, 0)
-    u = np.empty(cap, np.int64)
-    v = np.empty(cap, np.int64)
-    ox = np.empty(cap, np.float32)
-    oy = np.empty(cap, np.float32)
-    nx = np.empty(cap, np.float32)
-    ny = np.empty(cap, np.float32)
-    st = np.empty(cap, np.float32)
-    xu = np.empty(cap, np.int64)
-    xv = np.empty(cap, np.int64)
-    xs = np.empty(cap, np.float32)
-    n, m, mx = ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs)
-    return n, u[:m], v[:m], ox[:m], oy[:m], nx[:m], ny[:m], st[:m], xu[:mx], xv[:mx], xs[:mx]
+    most = max(H - 2, 0) * max(W - 2, 0)  # every inner pixel
+    cap = max(min(4096, most), (H * W) // 16)
+    while True:
+        u = np.empty(cap, np.int64)
+        v = np.empty(cap, np.int64)
+        ox = np.empty(cap, np.float32)
+        oy = np.empty(cap, np.float32)
+        nx = np.empty(cap, np.float32)
+        ny = np.empty(cap, np.float32)
+        st = np.empty(cap, np.float32)
+        xu = np.empty(cap, np.int64)
+        xv = np.empty(cap, np.int64)
+        xs = np.empty(cap, np.float32)
+        n, m, mx = ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs)
+        if m >= 0:
+            return n, u[:m], v[:m], ox[:m], oy[:m], nx[:m], ny[:m], st[:m], xu[:mx], xv[:mx], xs[:mx]
+        cap = min(2 * cap, most)
 
 
 @njit(error_model="numpy")

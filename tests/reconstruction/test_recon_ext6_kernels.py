@@ -1,0 +1,142 @@
+"""Round six of the extraction's speed work (decision 0091): the ridge pass that processes its candidate
+blocks while their rows are scanned (`ridge_pass_into`) against the NumPy formulation it computes (OpenCV's
+Laplacian, then the Hessian, eigenvector and Steger step in float32), including rows with more candidates
+than a block, outputs that run out of room, and `extraction._ridges`' per-thread arrays that grow."""
+
+from __future__ import annotations
+
+import threading
+
+import cv2
+import numpy as np
+
+from reconstruction import _extract_kernels as k
+from reconstruction import extraction
+
+
+def _image(seed: int, shape: tuple[int, int], n_bars: int, horizontal: int = 0) -> np.ndarray:
+    """Smoothed float32 image of bright bars at random angles on noise, plus `horizontal` bars along
+    rows (a row with more candidates than one block of the vectorised pass)."""
+    rng = np.random.default_rng(seed)
+    H, W = shape
+    img = np.zeros(shape, np.float32)
+    vv, uu = np.mgrid[0:H, 0:W].astype(np.float32)
+    for _ in range(n_bars):
+        a, c = rng.uniform(0, np.pi), rng.uniform(-0.4 * min(H, W), 0.4 * min(H, W))
+        d = np.abs((uu - W / 2) * np.sin(a) - (vv - H / 2) * np.cos(a) - c)
+        img += 120 * (d < 1.5)
+    for r in rng.integers(5, H - 5, horizontal):
+        img[r - 1 : r + 2, :] += 150
+    img += rng.normal(0, 2.0, img.shape).astype(np.float32)
+    g = cv2.getGaussianKernel(9, 1.2, cv2.CV_32F)
+    return cv2.sepFilter2D(img, cv2.CV_32F, g, g, borderType=cv2.BORDER_REFLECT)
+
+
+def _reference(G: np.ndarray, thr: np.float32, aniso: np.float32, cross: np.float32) -> tuple:
+    """The NumPy formulation: candidates where cv2.Laplacian < −thr/2 (inner pixels, row-major), the line
+    samples kept and the crossing candidates, as ridge_pass returns them."""
+    lap = cv2.Laplacian(G, cv2.CV_32F, ksize=1)
+    mask = lap < np.float32(-0.5 * thr)
+    mask[[0, -1], :] = False
+    mask[:, [0, -1]] = False
+    vv, uu = np.nonzero(mask)
+    gg = lambda dv, du: G[vv + dv, uu + du]  # noqa: E731
+    gx, gy = np.float32(0.5) * (gg(0, 1) - gg(0, -1)), np.float32(0.5) * (gg(1, 0) - gg(-1, 0))
+    gxx = gg(0, 1) - 2 * gg(0, 0) + gg(0, -1)
+    gyy = gg(1, 0) - 2 * gg(0, 0) + gg(-1, 0)
+    gxy = np.float32(0.25) * ((gg(1, 1) - gg(1, -1)) - (gg(-1, 1) - gg(-1, -1)))
+    half_tr = np.float32(0.5) * (gxx + gyy)
+    disc = np.sqrt((np.float32(0.5) * (gxx - gyy)) ** 2 + gxy * gxy)
+    lam1, lam2 = half_tr - disc, half_tr + disc
+    strength = -lam1
+    is_x = (lam2 < cross * strength) & (-lam2 > thr)
+    ax, ay, bx, by = gxy, lam1 - gxx, lam1 - gyy, gxy
+    use_b = (bx * bx + by * by) > (ax * ax + ay * ay)
+    ex, ey = np.where(use_b, bx, ax), np.where(use_b, by, ay)
+    nn = np.sqrt(ex * ex + ey * ey)
+    nn[nn == 0] = 1
+    ex, ey = ex / nn, ey / nn
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -(gx * ex + gy * ey) / lam1
+    keep = (strength > thr) & (lam2 > aniso * strength) & (np.abs(t * ex) <= 0.5) & (np.abs(t * ey) <= 0.5)
+    return (len(uu), uu[keep], vv[keep], (t * ex)[keep], (t * ey)[keep], ex[keep], ey[keep], strength[keep],
+            uu[is_x], vv[is_x], -lam2[is_x])
+
+
+def _assert_same(got: tuple, ref: tuple) -> None:
+    assert got[0] == ref[0]
+    for a, b in zip(got[1:], ref[1:]):
+        np.testing.assert_array_equal(a, b)
+
+
+def _outputs(cap: int) -> tuple:
+    i64, f32 = np.int64, np.float32
+    return tuple(np.empty(cap, t) for t in (i64, i64, f32, f32, f32, f32, f32, i64, i64, f32))
+
+
+THR, ANISO, CROSS = np.float32(4.0), np.float32(-0.5), np.float32(-0.25)
+
+
+def test_ridge_pass_into_matches_the_numpy_formulation_with_rows_longer_than_a_block():
+    # 3 rows of ~1500 candidates each: a row alone fills more than a block (_STEGER_BLOCK = 512)
+    G = _image(5, (90, 1500), 6, horizontal=3)
+    ref = _reference(G, THR, ANISO, CROSS)
+    lap = cv2.Laplacian(G, cv2.CV_32F, ksize=1)
+    assert (lap[1:-1, 1:-1] < -0.5 * THR).sum(axis=1).max() > k._STEGER_BLOCK
+    assert len(ref[1]) > 1000 and len(ref[8]) > 20
+    out = _outputs(G.size)
+    n, m, mx = k.ridge_pass_into(G, np.float32(-0.5 * THR), THR, ANISO, CROSS, *out)
+    _assert_same((n,) + tuple(a[:m] for a in out[:7]) + tuple(a[:mx] for a in out[7:]), ref)
+    _assert_same(k.ridge_pass(G, np.float32(-0.5 * THR), THR, ANISO, CROSS), ref)
+
+
+def test_ridge_pass_into_reports_outputs_too_small_and_fits_exactly_sized_ones():
+    G = _image(7, (140, 200), 14)
+    ref = _reference(G, THR, ANISO, CROSS)
+    m_ref, mx_ref = len(ref[1]), len(ref[8])
+    assert m_ref > 300 and mx_ref > 10
+    # exactly the room needed: the same outputs
+    out = _outputs(max(m_ref, mx_ref))
+    n, m, mx = k.ridge_pass_into(G, np.float32(-0.5 * THR), THR, ANISO, CROSS, *out)
+    assert (m, mx) == (m_ref, mx_ref)
+    _assert_same((n,) + tuple(a[:m] for a in out[:7]) + tuple(a[:mx] for a in out[7:]), ref)
+    # one place too few for the line samples, or for the crossing candidates: m = −1
+    small = _outputs(m_ref - 1)
+    assert k.ridge_pass_into(G, np.float32(-0.5 * THR), THR, ANISO, CROSS, *small)[1] == -1
+    i64, f32 = np.int64, np.float32
+    few_x = _outputs(m_ref)[:7] + (np.empty(mx_ref - 1, i64), np.empty(mx_ref - 1, i64), np.empty(mx_ref - 1, f32))
+    assert k.ridge_pass_into(G, np.float32(-0.5 * THR), THR, ANISO, CROSS, *few_x)[1] == -1
+
+
+def test_ridges_grow_the_threads_arrays_and_keep_them_per_thread():
+    G = _image(9, (160, 240), 16)
+    ref = _reference(G, THR, ANISO, CROSS)
+    results: dict = {}
+
+    def run(name: str, start_cap: int) -> None:
+        extraction._workspace.ridge = _outputs(start_cap)  # this thread's arrays, far too small at first
+        got = extraction._ridges(G, np.float32(-0.5 * THR), THR, ANISO, CROSS)
+        results[name] = (got, extraction._workspace.ridge)
+
+    threads = [threading.Thread(target=run, args=("a", 16)), threading.Thread(target=run, args=("b", 100))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for name in ("a", "b"):
+        got, bufs = results[name]
+        _assert_same(got, ref)
+        assert len(bufs[0]) >= len(ref[1])  # grown (doubling) to hold every line sample
+        assert np.shares_memory(got[1], bufs[0])  # views of the thread's arrays
+    assert not np.shares_memory(results["a"][1][0], results["b"][1][0])
+    # and a thread without arrays yet starts from 1/16 of the image
+    extraction._workspace.__dict__.pop("ridge", None)
+    _assert_same(extraction._ridges(G, np.float32(-0.5 * THR), THR, ANISO, CROSS), ref)
+    assert len(extraction._workspace.ridge[0]) >= max(G.size // 16, len(ref[1]))
+
+
+def test_ridge_pass_into_on_images_too_small_for_inner_pixels():
+    for shape in ((1, 5), (2, 7), (3, 3), (6, 2)):
+        G = np.zeros(shape, np.float32)
+        out = _outputs(4)
+        assert k.ridge_pass_into(G, np.float32(-2.0), THR, ANISO, CROSS, *out) == (0, 0, 0)
