@@ -24,8 +24,8 @@ def facing_links_mid(e, u, f_e, n_p, labelled, reach, lateral, cos_facing):
     end beyond the other, whose tangent lines extrapolated to the middle of the gap (e + g/2 · u) are
     within `lateral` of each other. e (2n_p, 2) end positions, u (2n_p, 2) outward unit directions, f_e
     (2n_p,) families (rows as `_continuation_kernels.piece_ends`). Ends are bucketed per family in cells
-    `reach` wide; every pair of a cell and its forward neighbours is looked at once, a pair of two labelled
-    pieces' ends (most pairs) skipped before any arithmetic."""
+    `reach` wide; every pair of a cell and its forward neighbours is looked at once; an end of a labelled
+    piece looks only at the ends of unlabelled pieces (listed per bucket, in bucket order: decision 0090)."""
     m = e.shape[0]
     out_a = np.empty(8 * m, np.intp)
     out_b = np.empty(8 * m, np.intp)
@@ -57,6 +57,23 @@ def facing_links_mid(e, u, f_e, n_p, labelled, reach, lateral, cos_facing):
         if key[k] >= 0:
             items[fill[key[k]]] = k
             fill[key[k]] += 1
+    # each bucket's ends of unlabelled pieces (their positions in items, increasing): a labelled end's
+    # partners are only those (decision 0090: the same pairs in the same order, without visiting the
+    # labelled–labelled ones)
+    ustart = np.zeros(2 * ng + 1, np.intp)
+    for t in range(start[2 * ng]):
+        k = items[t]
+        if not labelled[k - n_p if k >= n_p else k]:
+            ustart[key[k] + 1] += 1
+    for k in range(2 * ng):
+        ustart[k + 1] += ustart[k]
+    upos = np.empty(ustart[2 * ng], np.intp)
+    nu = 0
+    for t in range(start[2 * ng]):
+        k = items[t]
+        if not labelled[k - n_p if k >= n_p else k]:
+            upos[nu] = t
+            nu += 1
     r2 = reach * reach
     lat2 = lateral * lateral
     for f in range(2):
@@ -70,6 +87,56 @@ def facing_links_mid(e, u, f_e, n_p, labelled, reach, lateral, cos_facing):
                     lab0 = labelled[p0]
                     ex = e[i0, 0]
                     ey = e[i0, 1]
+                    if lab0:
+                        for nb in range(5):
+                            if nb == 0:
+                                xx, yy = cx, cy
+                            elif nb == 1:
+                                xx, yy = cx + 1, cy
+                            elif nb == 2:
+                                xx, yy = cx - 1, cy + 1
+                            elif nb == 3:
+                                xx, yy = cx, cy + 1
+                            else:
+                                xx, yy = cx + 1, cy + 1
+                            if xx < 0 or xx >= gw or yy >= gh:
+                                continue
+                            bn = base + yy * gw + xx
+                            for ut in range(ustart[bn], ustart[bn + 1]):
+                                t = upos[ut]
+                                if nb == 0 and t <= s:
+                                    continue
+                                j0 = items[t]
+                                p1 = j0 - n_p if j0 >= n_p else j0
+                                if p0 == p1:
+                                    continue
+                                w0 = e[j0, 0] - ex
+                                w1 = e[j0, 1] - ey
+                                g2 = w0 * w0 + w1 * w1
+                                if g2 >= r2:
+                                    continue
+                                if i0 < j0:
+                                    i, j, pi, pj, v0, v1 = i0, j0, p0, p1, w0, w1
+                                else:
+                                    i, j, pi, pj, v0, v1 = j0, i0, p1, p0, -w0, -w1
+                                if u[i, 0] * u[j, 0] + u[i, 1] * u[j, 1] >= -cos_facing:
+                                    continue
+                                if v0 * u[i, 0] + v1 * u[i, 1] <= 0 or v0 * u[j, 0] + v1 * u[j, 1] >= 0:
+                                    continue
+                                h = 0.5 * math.sqrt(g2)
+                                d0 = (e[i, 0] + h * u[i, 0]) - (e[j, 0] + h * u[j, 0])
+                                d1 = (e[i, 1] + h * u[i, 1]) - (e[j, 1] + h * u[j, 1])
+                                if d0 * d0 + d1 * d1 > lat2:
+                                    continue
+                                if nl == out_a.shape[0]:
+                                    break
+                                out_a[nl] = pi
+                                out_b[nl] = pj
+                                out_g[nl] = math.sqrt(g2)
+                                out_i[nl] = i
+                                out_j[nl] = j
+                                nl += 1
+                        continue
                     for nb in range(5):
                         if nb == 0:
                             xx, yy = cx, cy

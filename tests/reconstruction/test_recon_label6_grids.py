@@ -3,11 +3,15 @@ read only one family's part of a cell, against the plain grid and plain loops (b
 
 from __future__ import annotations
 
+import math
+
+import numba
 import numpy as np
 import pytest
 
 from reconstruction import _continuation_kernels as CK
 from reconstruction import _label_kernels as K
+from reconstruction import _link_kernels as LK
 from reconstruction import crossing_fill as CF
 from reconstruction.trace_ends import line_goes_on
 
@@ -171,3 +175,135 @@ def test_the_crossing_run_search_equals_the_plain_3x3_search():
                 n_runs += 1
                 assert tuple(got[1:]) == mom
     assert n_runs > 100
+
+
+# --- facing_links_mid: the labelled ends look only at unlabelled ones ---------------------------------------
+
+
+@numba.njit(cache=False)
+def _facing_links_all_pairs(e, u, f_e, n_p, labelled, reach, lateral, cos_facing):
+    """The kernel before decision 0090: every pair of a cell and its forward neighbours, labelled ones skipped."""
+    m = e.shape[0]
+    out_a = np.empty(8 * m, np.intp)
+    out_b = np.empty(8 * m, np.intp)
+    out_g = np.empty(8 * m)
+    out_i = np.empty(8 * m, np.intp)
+    out_j = np.empty(8 * m, np.intp)
+    nl = 0
+    if m == 0:
+        return out_a[:0], out_b[:0], out_g[:0], out_i[:0], out_j[:0]
+    x0 = e[:, 0].min()
+    y0 = e[:, 1].min()
+    cell = reach
+    gw = int((e[:, 0].max() - x0) / cell) + 1
+    gh = int((e[:, 1].max() - y0) / cell) + 1
+    ng = gw * gh
+    key = np.empty(m, np.intp)
+    start = np.zeros(2 * ng + 1, np.intp)
+    for k in range(m):
+        cx = min(max(int(math.floor((e[k, 0] - x0) / cell)), 0), gw - 1)
+        cy = min(max(int(math.floor((e[k, 1] - y0) / cell)), 0), gh - 1)
+        key[k] = (f_e[k] - 1) * ng + cy * gw + cx if f_e[k] == 1 or f_e[k] == 2 else -1
+        if key[k] >= 0:
+            start[key[k] + 1] += 1
+    for k in range(2 * ng):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    items = np.empty(m, np.intp)
+    for k in range(m):
+        if key[k] >= 0:
+            items[fill[key[k]]] = k
+            fill[key[k]] += 1
+    r2 = reach * reach
+    lat2 = lateral * lateral
+    for f in range(2):
+        base = f * ng
+        for cy in range(gh):
+            for cx in range(gw):
+                bk = base + cy * gw + cx
+                for s in range(start[bk], start[bk + 1]):
+                    i0 = items[s]
+                    p0 = i0 - n_p if i0 >= n_p else i0
+                    lab0 = labelled[p0]
+                    ex = e[i0, 0]
+                    ey = e[i0, 1]
+                    for nb in range(5):
+                        if nb == 0:
+                            xx, yy = cx, cy
+                        elif nb == 1:
+                            xx, yy = cx + 1, cy
+                        elif nb == 2:
+                            xx, yy = cx - 1, cy + 1
+                        elif nb == 3:
+                            xx, yy = cx, cy + 1
+                        else:
+                            xx, yy = cx + 1, cy + 1
+                        if xx < 0 or xx >= gw or yy >= gh:
+                            continue
+                        bn = base + yy * gw + xx
+                        t0 = s + 1 if nb == 0 else start[bn]
+                        for t in range(t0, start[bn + 1]):
+                            j0 = items[t]
+                            p1 = j0 - n_p if j0 >= n_p else j0
+                            if p0 == p1 or (lab0 and labelled[p1]):
+                                continue
+                            # the gap vector from the lower end id to the higher (negation is exact)
+                            w0 = e[j0, 0] - ex
+                            w1 = e[j0, 1] - ey
+                            g2 = w0 * w0 + w1 * w1
+                            if g2 >= r2:
+                                continue
+                            if i0 < j0:
+                                i, j, pi, pj, v0, v1 = i0, j0, p0, p1, w0, w1
+                            else:
+                                i, j, pi, pj, v0, v1 = j0, i0, p1, p0, -w0, -w1
+                            if u[i, 0] * u[j, 0] + u[i, 1] * u[j, 1] >= -cos_facing:
+                                continue
+                            if v0 * u[i, 0] + v1 * u[i, 1] <= 0 or v0 * u[j, 0] + v1 * u[j, 1] >= 0:
+                                continue
+                            h = 0.5 * math.sqrt(g2)
+                            d0 = (e[i, 0] + h * u[i, 0]) - (e[j, 0] + h * u[j, 0])
+                            d1 = (e[i, 1] + h * u[i, 1]) - (e[j, 1] + h * u[j, 1])
+                            if d0 * d0 + d1 * d1 > lat2:
+                                continue
+                            if nl == out_a.shape[0]:
+                                break
+                            out_a[nl] = pi
+                            out_b[nl] = pj
+                            out_g[nl] = math.sqrt(g2)
+                            out_i[nl] = i
+                            out_j[nl] = j
+                            nl += 1
+    return out_a[:nl], out_b[:nl], out_g[:nl], out_i[:nl], out_j[:nl]
+
+
+def _ends(rng, n_p, lattice):
+    """Piece ends (2n_p, 2) over ~150×110 px, outward directions, families, labelled pieces (most)."""
+    e = rng.uniform(0, [150, 110], (2 * n_p, 2))
+    if lattice:
+        e = np.round(e)
+    # the two ends of a piece a few px apart, pointing away from each other
+    d = rng.normal(size=(n_p, 2))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    e[n_p:] = e[:n_p] + d * rng.uniform(0, 30, (n_p, 1))
+    u = np.concatenate([-d, d]) + rng.normal(scale=0.15, size=(2 * n_p, 2))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    fam = np.tile(rng.choice([1, 2, 2, 1, 0], n_p), 2).astype(np.intp)
+    labelled = rng.random(n_p) < 0.7
+    return e, u, fam, labelled
+
+
+def test_facing_links_equal_the_all_pairs_scan():
+    rng = np.random.default_rng(65)
+    n_links = 0
+    for trial in range(40):
+        n_p = int(rng.integers(1, 400))
+        e, u, fam, labelled = _ends(rng, n_p, lattice=trial % 2 == 0)
+        reach = float(rng.choice([6.0, 12.0, 25.0]))
+        for lateral in (0.5, 3.0):
+            want = _facing_links_all_pairs(e, u, fam, n_p, labelled, reach, lateral, 0.95)
+            got = LK.facing_links_mid(e, u, fam, n_p, labelled, reach, lateral, 0.95)
+            for a, b in zip(want, got):
+                assert np.array_equal(a, b)
+            n_links += len(want[0])
+    assert n_links > 200
