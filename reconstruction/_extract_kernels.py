@@ -495,7 +495,9 @@ def link_segments(u, v, core, qx, qy, nx, ny, fam, Hw, Ww):
     the same line (same family, |n_a·n_b| ≥ 0.9, offset across ≤ 0.5 + 0.25·distance; float32), then the
     connected components (union-find), numbered by their lowest sample index (as scipy's
     connected_components), single samples dropped. Samples must come sorted by row (v), as the ridge pass
-    emits them: the sample ids are kept for a window of `_RING` rows (columns padded by 2 px).
+    emits them: the sample ids are kept for a window of `_RING` rows (columns padded by 2 px). The
+    components do not depend on the order of the unions (the smaller root always becomes the parent), so
+    a sample's own root is looked up once, at its first link, and updated by its unions.
 
     Returns seg (P,) int64 (−1: none) and the number of segments S."""
     P = len(u)
@@ -522,6 +524,7 @@ def link_segments(u, v, core, qx, qy, nx, ny, fam, Hw, Ww):
         slope = ty / tx if xdom else tx / ty
         if not np.isfinite(slope):
             continue
+        ra = -1  # a's root: found at its first link, then kept up to date by its unions (decision 0091)
         for k in range(1, 3):
             x = np.float32(k) * slope
             lo = int(x)  # floor(x), x finite, |x| <= 2
@@ -544,10 +547,11 @@ def link_segments(u, v, core, qx, qy, nx, ny, fam, Hw, Ww):
                 dqy = qy[b] - qy[a]
                 across = max(abs(dqx * nx[a] + dqy * ny[a]), abs(dqx * nx[b] + dqy * ny[b]))
                 if across <= np.float32(0.5) + np.float32(0.25) * np.float32(math.sqrt(dqx * dqx + dqy * dqy)):
-                    ra = a
-                    while parent[ra] != ra:
-                        parent[ra] = parent[parent[ra]]
-                        ra = parent[ra]
+                    if ra < 0:
+                        ra = a
+                        while parent[ra] != ra:
+                            parent[ra] = parent[parent[ra]]
+                            ra = parent[ra]
                     rb = b
                     while parent[rb] != rb:
                         parent[rb] = parent[parent[rb]]
@@ -557,6 +561,7 @@ def link_segments(u, v, core, qx, qy, nx, ny, fam, Hw, Ww):
                             parent[rb] = np.int32(ra)
                         else:
                             parent[ra] = np.int32(rb)
+                            ra = rb
     # the smaller root always becomes the parent, so parent[a] <= a: in index order each root is known
     # from the parent's, and a component's root is its lowest sample
     root = np.empty(P, np.int32)
@@ -714,7 +719,18 @@ def end_walks(sidx, sg, sproj, smin, smax, qx, qy, nx, ny, fam, seg_family, seg_
                 iv = int(np.rint(pv))
                 if iu < 0 or iu >= Ww or iv < 0 or iv >= Hw:
                     continue
-                h = sample_at(row_start, u, core, iu, iv)
+                # the sample (outside the cores) at (iu, iv): `sample_at` written out (a call per probe with
+                # its array arguments cost more than the binary search itself; decision 0091)
+                lo = row_start[iv]
+                hi = row_start[iv + 1]
+                end = hi
+                while lo < hi:
+                    mid = (lo + hi) >> 1
+                    if u[mid] < iu:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                h = lo if (lo < end and u[lo] == iu and not core[lo]) else -1
                 if h >= 0 and fam[h] != seg_family[g]:
                     t_ids[n_t] = h
                     n_t += 1

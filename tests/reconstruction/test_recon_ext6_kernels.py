@@ -1,10 +1,12 @@
 """Round six of the extraction's speed work (decision 0091): the ridge pass that processes its candidate
 blocks while their rows are scanned (`ridge_pass_into`) against the NumPy formulation it computes (OpenCV's
 Laplacian, then the Hessian, eigenvector and Steger step in float32), including rows with more candidates
-than a block, outputs that run out of room, and `extraction._ridges`' per-thread arrays that grow."""
+than a block, outputs that run out of room, and `extraction._ridges`' per-thread arrays that grow; the end
+walks (binary search written out) against the previous kernel kept here as the reference."""
 
 from __future__ import annotations
 
+import math
 import threading
 
 import cv2
@@ -12,6 +14,8 @@ import numpy as np
 
 from reconstruction import _extract_kernels as k
 from reconstruction import extraction
+from reconstruction._extract_kernels import sample_at
+from reconstruction._jit import njit
 
 
 def _image(seed: int, shape: tuple[int, int], n_bars: int, horizontal: int = 0) -> np.ndarray:
@@ -140,3 +144,90 @@ def test_ridge_pass_into_on_images_too_small_for_inner_pixels():
         G = np.zeros(shape, np.float32)
         out = _outputs(4)
         assert k.ridge_pass_into(G, np.float32(-2.0), THR, ANISO, CROSS, *out) == (0, 0, 0)
+
+
+# --- end_walks: the T walk's binary search written out (decision 0091) ---------------------------------------
+
+
+@njit
+def _end_walks_reference(sidx, sg, sproj, smin, smax, qx, qy, nx, ny, fam, seg_family, seg_dir, probes, Hw, Ww,
+              seed_grid, seed_remap, inv_cs, pad, sx, sy, sx32, sy32, r_side32, r_reach, row_start, u, core):
+    """end_walks as it was before decision 0091 (calling sample_at per probe of the T walk)."""
+    S = len(smin)
+    seg_seed = np.full((S, 2), -1, np.int64)
+    t_ids = np.empty(2 * S, np.int64)
+    n_t = 0
+    GH, GW = seed_grid.shape
+    for e in range(2):
+        e_i = np.zeros(S, np.int64)
+        for k in range(len(sidx)):
+            g = sg[k]
+            if sproj[k] == (smin[g] if e == 0 else smax[g]):
+                e_i[g] = sidx[k]
+        sgn = -1.0 if e == 0 else 1.0
+        for g in range(S):
+            i = e_i[g]
+            ex = np.float64(qx[i])
+            ey = np.float64(qy[i])
+            tx = -np.float64(ny[i])
+            ty = np.float64(nx[i])
+            if (tx * seg_dir[g, 0] + ty * seg_dir[g, 1]) * sgn < 0:
+                tx = -tx
+                ty = -ty
+            kk = -1
+            for p in range(len(probes)):
+                pu32 = np.float32(ex + probes[p] * tx)
+                pv32 = np.float32(ey + probes[p] * ty)
+                c = min(max(int(pu32 * inv_cs) + pad, 0), GW - 1)
+                r = min(max(int(pv32 * inv_cs) + pad, 0), GH - 1)
+                h = seed_grid[r, c]
+                if h >= 0:
+                    h = seed_remap[h]
+                if h >= 0:
+                    dx = pu32 - sx32[h]
+                    dy = pv32 - sy32[h]
+                    if np.float32(math.sqrt(dx * dx + dy * dy)) <= r_side32:
+                        kk = h
+                        break
+            if kk >= 0 and math.hypot(ex - sx[kk], ey - sy[kk]) <= r_reach:
+                seg_seed[g, e] = kk
+                continue
+            # a free end running into a line of the other family is a T
+            for p in range(len(probes)):
+                pu = ex + probes[p] * tx
+                pv = ey + probes[p] * ty
+                iu = int(np.rint(pu))
+                iv = int(np.rint(pv))
+                if iu < 0 or iu >= Ww or iv < 0 or iv >= Hw:
+                    continue
+                h = sample_at(row_start, u, core, iu, iv)
+                if h >= 0 and fam[h] != seg_family[g]:
+                    t_ids[n_t] = h
+                    n_t += 1
+                    break
+    return seg_seed, t_ids[:n_t].copy()
+
+
+def test_end_walks_match_the_version_calling_sample_at(small_scene):
+    """On the small simulated scene (a sphere in front of a plane: free ends at its silhouette and shadow,
+    T-shapes where they run into the other family), the end walks give what the previous kernel gave."""
+    from reconstruction.rigmodel import rig_model
+
+    model = rig_model(small_scene.procam, small_scene.pattern, small_scene.depth_range_mm)
+    cap = {}
+    orig = k.end_walks
+
+    def spy(*a):
+        cap["args"] = [x.copy() if isinstance(x, np.ndarray) else x for x in a]  # the grid buffer is reused later
+        return orig(*a)
+
+    extraction._k.end_walks = spy
+    try:
+        extraction.extract_grid(small_scene.image, model)
+    finally:
+        extraction._k.end_walks = orig
+    seg_seed, t_ids = k.end_walks(*cap["args"])
+    ref_seed, ref_t = _end_walks_reference(*cap["args"])
+    assert (seg_seed >= 0).sum() > 100 and (seg_seed < 0).sum() > 20 and len(t_ids) > 3
+    np.testing.assert_array_equal(seg_seed, ref_seed)
+    np.testing.assert_array_equal(t_ids, ref_t)
