@@ -537,7 +537,9 @@ def _buckets(pts, x0, y0, cell, gw, gh):
 @njit
 def knn_within(pts, queries, k, radius):
     """Like cKDTree(pts).query(queries, k=k, distance_upper_bound=radius): distances (Q, k) ascending, inf
-    where fewer than k points lie closer than radius, and their ids (Q, k) (M where none)."""
+    where fewer than k points lie closer than radius, and their ids (Q, k) (M where none). Per query the
+    points of the 3×3 cells in the disc are gathered first (branch-free), then sorted into the best k:
+    the k smallest (distance², id) do not depend on the order (decision 0090)."""
     m = pts.shape[0]
     nq = queries.shape[0]
     dist = np.full((nq, k), np.inf)
@@ -552,6 +554,8 @@ def knn_within(pts, queries, k, radius):
     start, items = _buckets(pts, x0, y0, cell, gw, gh)
     r2 = radius * radius
     bd = np.empty(k)
+    cd = np.empty(m + 1)
+    ci = np.empty(m + 1, np.intp)
     bi = np.empty(k, np.intp)
     for qi in range(nq):
         qx = queries[qi, 0]
@@ -560,7 +564,8 @@ def knn_within(pts, queries, k, radius):
             continue
         cx = int(math.floor((qx - x0) / cell))
         cy = int(math.floor((qy - y0) / cell))
-        nfound = 0
+        # the points in the disc, gathered branch-free (a store per point, the count advanced by the test)
+        nc = 0
         for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
             for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
                 b = yy * gw + xx
@@ -569,21 +574,26 @@ def knn_within(pts, queries, k, radius):
                     d0 = pts[j, 0] - qx
                     d1 = pts[j, 1] - qy
                     d2 = d0 * d0 + d1 * d1
-                    if d2 >= r2:
-                        continue
-                    # insert into the sorted best-k list (ties: lower id first)
-                    if nfound == k and (d2 > bd[k - 1] or (d2 == bd[k - 1] and j > bi[k - 1])):
-                        continue
-                    pos = nfound if nfound < k else k - 1
-                    while pos > 0 and (bd[pos - 1] > d2 or (bd[pos - 1] == d2 and bi[pos - 1] > j)):
-                        if pos < k:
-                            bd[pos] = bd[pos - 1]
-                            bi[pos] = bi[pos - 1]
-                        pos -= 1
-                    bd[pos] = d2
-                    bi[pos] = j
-                    if nfound < k:
-                        nfound += 1
+                    cd[nc] = d2
+                    ci[nc] = j
+                    nc += not (d2 >= r2)  # (the former `if d2 >= r2: continue`, NaN included)
+        nfound = 0
+        for h in range(nc):
+            d2 = cd[h]
+            j = ci[h]
+            # insert into the sorted best-k list (ties: lower id first)
+            if nfound == k and (d2 > bd[k - 1] or (d2 == bd[k - 1] and j > bi[k - 1])):
+                continue
+            pos = nfound if nfound < k else k - 1
+            while pos > 0 and (bd[pos - 1] > d2 or (bd[pos - 1] == d2 and bi[pos - 1] > j)):
+                if pos < k:
+                    bd[pos] = bd[pos - 1]
+                    bi[pos] = bi[pos - 1]
+                pos -= 1
+            bd[pos] = d2
+            bi[pos] = j
+            if nfound < k:
+                nfound += 1
         for s in range(nfound):
             dist[qi, s] = math.sqrt(bd[s])
             idx[qi, s] = bi[s]
