@@ -26,11 +26,12 @@ top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055â
    within two smoothing scales of an end that reaches no crossing (a line cut by a silhouette or shadow)
    leave their segment: the cut bends the ridge there (decision 0059).
 
-Speed (decisions 0062, 0063, 0069, 0079, 0087): the smoothing is one OpenCV call into a per-thread working image;
+Speed (decisions 0062, 0063, 0069, 0079, 0087, 0091): the smoothing is one OpenCV call into a per-thread working image;
 every per-pixel and per-sample step is a numba kernel (`reconstruction/_extract_kernels.py`) â€” one walk
-over the image for the Laplacian test (a vectorised loop per row, candidates collected branch-free), then
-the Hessian, eigenvector and Steger offset of the candidates in blocks that LLVM vectorises (row-major, so
-sample order is the scan order), one branch-free pass for the albedo test and the families,
+over the image for the Laplacian test (a vectorised loop per row, candidates collected branch-free) that
+computes the Hessian, eigenvector and Steger offset of the candidates in blocks that LLVM vectorises as
+soon as a block's rows have been scanned (row-major, so sample order is the scan order; outputs in
+per-thread arrays), one branch-free pass for the albedo test and the families,
 nearest-candidate lookups on coarse grids, linking with 4 probes per sample on a window of sample-id rows
 and a union-find, the line fits, end walks, arms, trims and chord tests as loops over samples or segments,
 the per-junction tests and the duplicates in one pass each (decision 0079); the noise estimate of an
