@@ -1706,10 +1706,16 @@ def median_finite(r):
         if math.isfinite(v):
             a[c] = v
             c += 1
-    a.sort()
+    # the middle order statistics by selection instead of a sort (decision 0090): the same values
+    h = n // 2
+    p = np.partition(a, h)
     if n % 2 == 1:
-        return a[n // 2]
-    return ((0.0 + a[n // 2 - 1]) + a[n // 2]) / 2.0
+        return p[h]
+    lo = p[0]  # the largest of the h smallest
+    for i in range(1, h):
+        if p[i] > lo:
+            lo = p[i]
+    return ((0.0 + lo) + p[h]) / 2.0
 
 
 @intrinsic

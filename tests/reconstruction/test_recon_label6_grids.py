@@ -307,3 +307,21 @@ def test_facing_links_equal_the_all_pairs_scan():
                 assert np.array_equal(a, b)
             n_links += len(want[0])
     assert n_links > 200
+
+
+def test_median_by_selection_equals_numpys_median():
+    """`median_finite` selects the middle order statistics instead of sorting: np.median's value, ties,
+    odd and even counts, NaN left out, none finite."""
+    rng = np.random.default_rng(66)
+    for n in list(range(0, 12)) + [57, 300, 1001]:
+        for ties in (False, True):
+            r = np.abs(rng.normal(size=n))
+            if ties:
+                r = np.round(r * 4) / 4
+            r[rng.random(n) < 0.2] = np.nan
+            fin = r[np.isfinite(r)]
+            got = K.median_finite(r)
+            if len(fin) == 0:
+                assert np.isnan(got)
+            else:
+                assert got == np.median(fin)
