@@ -14,6 +14,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from llvmlite import ir
+from numba.core import types
+from numba.extending import intrinsic
 
 from reconstruction._jit import njit
 
@@ -23,6 +26,74 @@ _F32_TWO = np.float32(2.0)
 _F32_M4 = np.float32(-4.0)
 _F32_ONE = np.float32(1.0)
 _F32_ZERO = np.float32(0.0)
+
+
+@intrinsic
+def fma32(typingctx, a, b, c):
+    """a·b + c with one rounding (LLVM's llvm.fma.f32: the FMA instruction), float32."""
+    sig = types.float32(types.float32, types.float32, types.float32)
+
+    def codegen(context, builder, signature, args):
+        f32 = ir.FloatType()
+        fn = builder.module.declare_intrinsic("llvm.fma", [f32], ir.FunctionType(f32, [f32, f32, f32]))
+        return builder.call(fn, args)
+
+    return sig, codegen
+
+
+GAUSS_MAX_TAPS = 15  # longer kernels: LLVM stops unrolling the tap loops and the kernel is ~10x slower
+
+
+@njit(error_model="numpy")
+def gauss_u8(img, k, out):
+    """The separable Gaussian of an 8-bit image as this OpenCV build's `cv2.sepFilter2D(img, CV_32F, k, k,
+    borderType=BORDER_REFLECT)` computes it, to the bit (decision 0091): per source row (reflected at the
+    top and bottom) the row pass s = fma(x_j, k_j, s) over taps j = 0…K−1 from s = x_0·k_0 (x reflected at
+    the left and right), then per output row the column pass s = R_0·k_c, s = fma(R_−j + R_+j, k_c+j, s)
+    for j = 1…r (k symmetric). img (H, W) uint8 with H, W > r; k: UniTuple(float32, K), K odd, at most
+    GAUSS_MAX_TAPS (a tuple, so that the tap loops have a constant trip count and vectorise across x);
+    out (H, W) float32.
+
+    Equal to OpenCV where its SIMD loops cover every column (W a multiple of 16 here): OpenCV's scalar
+    tail does not fuse the column pass's multiply-add (at W = 758 about 0.7 % of the pixels differ by an
+    ulp), so `extraction._smooth` uses this kernel only when W is a multiple of 16. The row pass keeps each
+    filtered row twice in a ring of 2K rows (slots i mod K and i mod K + K), so the K rows an output row
+    needs are always consecutive."""
+    H, W = img.shape
+    K = len(k)
+    r = K // 2
+    ext = np.empty(W + 2 * r, np.float32)
+    T = np.empty((2 * K, W), np.float32)
+    for yy in range(-r, H + r):
+        sy = yy
+        if sy < 0:
+            sy = -sy - 1
+        elif sy >= H:
+            sy = 2 * H - sy - 1
+        src = img[sy]
+        for x in range(W):
+            ext[x + r] = np.float32(src[x])
+        for x in range(r):  # BORDER_REFLECT: fedcba|abcdef
+            ext[r - 1 - x] = np.float32(src[x])
+            ext[W + r + x] = np.float32(src[W - 1 - x])
+        slot = (yy + r) % K
+        row = T[slot]
+        row2 = T[slot + K]
+        for x in range(W):
+            acc = ext[x] * k[0]
+            for j in range(1, K):
+                acc = fma32(ext[x + j], k[j], acc)
+            row[x] = acc
+            row2[x] = acc
+        y = yy - r
+        if y >= 0:
+            s0 = y % K  # rows y − r … y + r are in slots s0 … s0 + K − 1
+            o = out[y]
+            for x in range(W):
+                acc = T[s0 + r, x] * k[r]
+                for j in range(1, r + 1):
+                    acc = fma32(T[s0 + r - j, x] + T[s0 + r + j, x], k[r + j], acc)
+                o[x] = acc
 
 
 _STEGER_BLOCK = 512  # candidates per block of the ridge walk's vectorised Hessian pass
@@ -182,6 +253,135 @@ def ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny,
         kl = 0
         kx = 0
         for j in range(nb):  # the places of the kept ones in the block, branch-free
+            il[kl] = j
+            kl += O[7, j] != 0
+            ix[kx] = j
+            kx += O[6, j] != 0
+        if m + kl > cap_l or mx + kx > cap_x:
+            return n, -1, mx
+        for t in range(kx):
+            j = ix[t]
+            i = cand[j]
+            vv = i // W
+            xu[mx] = i - vv * W
+            xv[mx] = vv
+            xs[mx] = O[5, j]
+            mx += 1
+        for t in range(kl):
+            j = il[t]
+            i = cand[j]
+            vv = i // W
+            u[m] = i - vv * W
+            v[m] = vv
+            ox[m] = O[0, j]
+            oy[m] = O[1, j]
+            nx[m] = O[2, j]
+            ny[m] = O[3, j]
+            st[m] = O[4, j]
+            m += 1
+    return n, m, mx
+
+
+@njit(error_model="numpy")
+def smooth_ridges_u8(img, k, G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs):
+    """`gauss_u8(img, k, G)` and then `ridge_pass_into(G, ...)` in one walk down the image (decision 0091):
+    as soon as smoothed row y is written, row y − 1 gets the Laplacian test, and a block of candidates is
+    processed when a row leaves at least `_STEGER_BLOCK` pending, while the rows it reads are still in
+    cache. The same arithmetic in the same order as the two kernels, so the same G and the same outputs
+    (returns what `ridge_pass_into` returns; m = −1 when an output ran out of room)."""
+    H, W = img.shape
+    K = len(k)
+    rk = K // 2
+    ext = np.empty(W + 2 * rk, np.float32)
+    T = np.empty((2 * K, W), np.float32)
+    B = _STEGER_BLOCK
+    cap = B + W + 8
+    cand = np.empty(cap, np.int32)
+    flag = np.zeros((W + 7) // 8 * 8, np.uint8)
+    flag8 = flag.view(np.uint64)
+    V = np.empty((9, cap), np.float32)
+    O = np.empty((8, cap), np.float32)
+    il = np.empty(cap, np.int64)
+    ix = np.empty(cap, np.int64)
+    g = G.ravel()
+    cap_l = u.shape[0]
+    cap_x = xu.shape[0]
+    n = 0
+    npend = 0
+    m = 0
+    mx = 0
+    for yy in range(-rk, H + rk + 1):
+        last = yy == H + rk  # an extra step: only the final block
+        if not last:
+            # the Gaussian (gauss_u8): row pass of source row yy, column pass of output row yy − rk
+            sy = yy
+            if sy < 0:
+                sy = -sy - 1
+            elif sy >= H:
+                sy = 2 * H - sy - 1
+            src = img[sy]
+            for x in range(W):
+                ext[x + rk] = np.float32(src[x])
+            for x in range(rk):
+                ext[rk - 1 - x] = np.float32(src[x])
+                ext[W + rk + x] = np.float32(src[W - 1 - x])
+            slot = (yy + rk) % K
+            row = T[slot]
+            row2 = T[slot + K]
+            for x in range(W):
+                acc = ext[x] * k[0]
+                for j in range(1, K):
+                    acc = fma32(ext[x + j], k[j], acc)
+                row[x] = acc
+                row2[x] = acc
+            y = yy - rk
+            if y < 0:
+                continue
+            s0 = y % K
+            o = G[y]
+            for x in range(W):
+                acc = T[s0 + rk, x] * k[rk]
+                for j in range(1, rk + 1):
+                    acc = fma32(T[s0 + rk - j, x] + T[s0 + rk + j, x], k[rk + j], acc)
+                o[x] = acc
+        # the ridge pass (ridge_pass_into) on row r = y − 1, whose neighbours are now smoothed
+        r = yy - rk - 1
+        if r < 1:
+            continue
+        if not last and r < H - 1:
+            a = G[r - 1]
+            b = G[r]
+            d = G[r + 1]
+            for c in range(1, W - 1):
+                flag[c] = ((((a[c] + b[c - 1]) + _F32_M4 * b[c]) + b[c + 1]) + d[c]) < thr_lap
+            base = r * W
+            for w in range(len(flag8)):
+                if flag8[w] != 0:
+                    for c in range(8 * w, 8 * w + 8):
+                        cand[npend] = base + c
+                        npend += flag[c]
+            if npend < B:
+                continue
+        elif not last:
+            continue  # r = H − 1 (a border row) before the final step: nothing to scan
+        nb = npend
+        n += nb
+        npend = 0
+        for j in range(nb):
+            i = cand[j]
+            V[0, j] = g[i]
+            V[1, j] = g[i + 1]
+            V[2, j] = g[i - 1]
+            V[3, j] = g[i + W]
+            V[4, j] = g[i - W]
+            V[5, j] = g[i + W + 1]
+            V[6, j] = g[i + W - 1]
+            V[7, j] = g[i - W + 1]
+            V[8, j] = g[i - W - 1]
+        steger_block(nb, V, thr, neg_aniso, neg_cross, O)
+        kl = 0
+        kx = 0
+        for j in range(nb):
             il[kl] = j
             kl += O[7, j] != 0
             ix[kx] = j

@@ -231,3 +231,87 @@ def test_end_walks_match_the_version_calling_sample_at(small_scene):
     assert (seg_seed >= 0).sum() > 100 and (seg_seed < 0).sum() > 20 and len(t_ids) > 3
     np.testing.assert_array_equal(seg_seed, ref_seed)
     np.testing.assert_array_equal(t_ids, ref_t)
+
+
+# --- gauss_u8: OpenCV's separable Gaussian to the bit (decision 0091) ----------------------------------------
+
+
+def _random_u8(seed: int, shape: tuple[int, int]) -> np.ndarray:
+    """Bars, a gradient and noise on 8 bits: every grey level and sharp edges."""
+    rng = np.random.default_rng(seed)
+    H, W = shape
+    vv, uu = np.mgrid[0:H, 0:W].astype(np.float32)
+    img = 40 + 0.2 * uu + 30 * (np.abs(np.sin(0.31 * uu + 0.17 * vv)) > 0.8) + rng.normal(0, 6.0, shape)
+    img[rng.random(shape) < 0.01] = 255
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def test_gauss_u8_equals_opencvs_sepfilter2d_to_the_bit():
+    """Every kernel length the full-resolution path uses (σ from 1 to 2), on images whose width is a
+    multiple of 16 (where this OpenCV build's SIMD loops cover every column), border rows and columns
+    included. If another OpenCV build sums in another order, this test says so."""
+    for seed, shape in ((1, (37, 64)), (2, (120, 160)), (3, (301, 320))):
+        img = _random_u8(seed, shape)
+        for sigma in (1.0, 1.2, 1.45, 1.75, 2.0):
+            k_cv = extraction._gauss_kernel(sigma)
+            taps = extraction._gauss_taps(sigma)
+            assert len(taps) == len(k_cv) <= k.GAUSS_MAX_TAPS
+            ref = cv2.sepFilter2D(img, cv2.CV_32F, k_cv, k_cv, borderType=cv2.BORDER_REFLECT)
+            out = np.full(shape, np.nan, np.float32)
+            k.gauss_u8(img, taps, out)
+            np.testing.assert_array_equal(out, ref)
+
+
+def test_smooth_takes_the_kernel_or_opencv_with_the_same_result():
+    """`_smooth` uses gauss_u8 for 8-bit images of width 16·n and short kernels, OpenCV otherwise (other
+    widths, longer kernels, float images): the working image is OpenCV's in every case."""
+    cases = [((90, 160), 1.45, np.uint8), ((90, 150), 1.45, np.uint8), ((90, 160), 2.5, np.uint8), ((90, 160), 1.45, np.float32)]
+    for shape, sigma, dtype in cases:
+        img = _random_u8(7, shape)
+        src = img if dtype == np.uint8 else img.astype(np.float32)
+        k_cv = extraction._gauss_kernel(sigma)
+        ref = cv2.sepFilter2D(src, cv2.CV_32F, k_cv, k_cv, borderType=cv2.BORDER_REFLECT)
+        out = np.full(shape, np.nan, np.float32)
+        got = extraction._smooth(src, sigma, 1, out=out)
+        assert got is out
+        np.testing.assert_array_equal(out, ref)
+    # and the kernel differs from a plain (unfused) multiply-add, so the equality above is not vacuous
+    img = _random_u8(8, (60, 96))
+    taps = extraction._gauss_taps(1.45)
+    pad = np.pad(img.astype(np.float32), len(taps) // 2, mode="symmetric")
+    rows = sum(pad[:, j : j + img.shape[1]] * taps[j] for j in range(len(taps)))
+    plain = sum(rows[j : j + img.shape[0]] * taps[j] for j in range(len(taps)))
+    fused = np.empty(img.shape, np.float32)
+    k.gauss_u8(img, taps, fused)
+    assert not np.array_equal(fused, plain)
+    np.testing.assert_allclose(fused, plain, rtol=0, atol=1e-3)
+
+
+def test_smooth_ridges_u8_is_gauss_u8_then_ridge_pass_into():
+    """The fused walk gives the same working image and the same samples and crossing candidates as the two
+    kernels one after the other: several blocks, a row longer than a block, the final partial block, and
+    outputs that run out of room (m = −1, then the same after growing in `_ridges`)."""
+    for seed, shape, horizontal in ((11, (96, 1280), 2), (12, (150, 208), 0), (13, (3, 64), 0)):
+        img = _random_u8(seed, shape)
+        if horizontal:
+            img[40:43, :] = 250  # a bright row: more candidates in one row than a block
+        taps = extraction._gauss_taps(1.45)
+        thr_args = (np.float32(-0.5 * 6.0), np.float32(6.0), ANISO, CROSS)
+        G_ref = np.empty(shape, np.float32)
+        k.gauss_u8(img, taps, G_ref)
+        out_ref = _outputs(img.size)
+        n, m, mx = k.ridge_pass_into(G_ref, *thr_args, *out_ref)
+        G = np.full(shape, np.nan, np.float32)
+        out = _outputs(img.size)
+        assert k.smooth_ridges_u8(img, taps, G, *thr_args, *out) == (n, m, mx)
+        np.testing.assert_array_equal(G, G_ref)
+        for a, b, cnt in zip(out, out_ref, (m,) * 7 + (mx,) * 3):
+            np.testing.assert_array_equal(a[:cnt], b[:cnt])
+        if shape[0] > 3:
+            assert n > k._STEGER_BLOCK and m > 50
+            assert k.smooth_ridges_u8(img, taps, G, *thr_args, *_outputs(m - 1))[1] == -1
+            extraction._workspace.ridge = _outputs(8)
+            got = extraction._ridges(np.empty(shape, np.float32), *thr_args, image=img, taps=taps)
+            assert got[0] == n and len(got[1]) == m and len(got[8]) == mx
+            for a, b in zip(got[1:8], out_ref[:7]):
+                np.testing.assert_array_equal(a, b[:m])
