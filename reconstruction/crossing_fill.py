@@ -122,7 +122,7 @@ def fill_crossings(
     # 1. each line's labelled samples in order along its family's direction (the rig's prediction)
     d1, d2 = _family_directions(model)
     sel, key = _k_order(q, fam, idx, d1, d2)
-    order = sel[np.argsort(key)]
+    order = _sorted_by_key(sel, key)
     if len(order) < 2 * options.anchor + 2:
         return _empty(stats)
     lab = np.ascontiguousarray(junction_labels, np.int64).reshape(-1, 2)
@@ -214,6 +214,55 @@ def _k_order(q, fam, idx, d1, d2):
         i = sel[p]
         key[p] = (fam[i] * (kmax - kmin + 2.0) + (idx[i] - kmin)) * span + t[p]
     return sel[:m], key
+
+
+def _sorted_by_key(sel: np.ndarray, key: np.ndarray) -> np.ndarray:
+    """sel[np.argsort(key)], by NumPy's sort of integers instead of its argsort (decision 0090: ~0.2 against
+    ~0.5 ms for 25 000 samples). Each key is mapped to an unsigned integer of the same order, its lowest b
+    bits replaced by its position (b bits hold len(key) − 1); when the remaining high bits differ between
+    every two neighbours of the sorted list, the keys are distinct and that is the one order by key, the
+    argsort's; else (keys within ~2^b ulp of each other, or a key ≤ 0) the argsort itself."""
+    n = len(key)
+    if n < 2:
+        return sel[np.argsort(key)]
+    b = int(n - 1).bit_length()
+    packed, ok = _k_pack(key, b)
+    if ok:
+        order, ok = _k_unpack(np.sort(packed), sel, b)
+        if ok:
+            return order
+    return sel[np.argsort(key)]
+
+
+@njit
+def _k_pack(key, b):
+    """`_sorted_by_key`'s integers: the key's bits (positive floats order as their bit patterns) with the lowest
+    b replaced by the position; ok False when a key is not a positive finite number."""
+    n = key.shape[0]
+    out = np.empty(n, np.uint64)
+    bits = key.view(np.uint64)
+    hi_mask = ~((np.uint64(1) << np.uint64(b)) - np.uint64(1))
+    ok = True
+    for i in range(n):
+        if not (key[i] > 0.0 and key[i] < np.inf):
+            ok = False
+        out[i] = (bits[i] & hi_mask) | np.uint64(i)
+    return out, ok
+
+
+@njit
+def _k_unpack(srt, sel, b):
+    """The positions of the sorted integers (their lowest b bits) as sample ids sel[...]; ok False when two
+    neighbours share their high bits (keys too close to tell apart at this precision)."""
+    n = srt.shape[0]
+    low = (np.uint64(1) << np.uint64(b)) - np.uint64(1)
+    order = np.empty(n, np.intp)
+    ok = True
+    for i in range(n):
+        order[i] = sel[np.intp(srt[i] & low)]
+        if i > 0 and (srt[i] >> np.uint64(b)) == (srt[i - 1] >> np.uint64(b)):
+            ok = False
+    return order, ok
 
 
 @njit

@@ -325,3 +325,24 @@ def test_median_by_selection_equals_numpys_median():
                 assert np.isnan(got)
             else:
                 assert got == np.median(fin)
+
+
+def test_sorting_the_packed_keys_gives_the_argsort_order():
+    """`crossing_fill._sorted_by_key` = sel[np.argsort(key)]: distinct keys (the packed integers' order),
+    keys a few ulp apart and equal keys (the argsort itself), and the fast path taken where it can be."""
+    rng = np.random.default_rng(67)
+    fast = 0
+    for trial in range(60):
+        n = int(rng.integers(0, 3000))
+        key = rng.uniform(1.0, 5e5, n)
+        if trial % 3 == 1 and n > 2:
+            key[rng.integers(0, n, 3)] = key[0]  # exact ties
+        if trial % 3 == 2 and n > 2:
+            key[1] = np.nextafter(key[0], np.inf)  # neighbours within the packed bits
+        sel = rng.permutation(n + 5)[:n].astype(np.intp)
+        want = sel[np.argsort(key)]
+        assert np.array_equal(CF._sorted_by_key(sel, key), want)
+        if n > 1:
+            packed, ok = CF._k_pack(key, int(n - 1).bit_length())
+            fast += bool(ok and CF._k_unpack(np.sort(packed), sel, int(n - 1).bit_length())[1])
+    assert fast >= 15
