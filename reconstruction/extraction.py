@@ -228,7 +228,8 @@ def _work_buffer(shape: tuple[int, int]) -> np.ndarray:
     return buf
 
 
-def _ridges(G: np.ndarray, thr_lap, thr, neg_aniso, neg_cross, *, image: np.ndarray | None = None, taps: tuple = ()) -> tuple:
+def _ridges(G: np.ndarray, thr_lap, thr, neg_aniso, neg_cross, *, image: np.ndarray | None = None,
+            taps: tuple = ()) -> tuple:
     """`_extract_kernels.ridge_pass` with its outputs in arrays owned by the calling thread (views of them
     are returned; `albedo_and_families` copies what it keeps, so nothing returned by `extract_grid` refers
     to them). The arrays start at 1/16 of the image's pixels and double when a frame needs more (decision

@@ -12,7 +12,7 @@ import threading
 import cv2
 import numpy as np
 
-from reconstruction import _extract_kernels as k
+from reconstruction import _extract_kernels as ek
 from reconstruction import extraction
 from reconstruction._extract_kernels import sample_at
 from reconstruction._jit import njit
@@ -86,12 +86,12 @@ def test_ridge_pass_into_matches_the_numpy_formulation_with_rows_longer_than_a_b
     G = _image(5, (90, 1500), 6, horizontal=3)
     ref = _reference(G, THR, ANISO, CROSS)
     lap = cv2.Laplacian(G, cv2.CV_32F, ksize=1)
-    assert (lap[1:-1, 1:-1] < -0.5 * THR).sum(axis=1).max() > k._STEGER_BLOCK
+    assert (lap[1:-1, 1:-1] < -0.5 * THR).sum(axis=1).max() > ek._STEGER_BLOCK
     assert len(ref[1]) > 1000 and len(ref[8]) > 20
     out = _outputs(G.size)
-    n, m, mx = k.ridge_pass_into(G, np.float32(-0.5 * THR), THR, ANISO, CROSS, *out)
+    n, m, mx = ek.ridge_pass_into(G, np.float32(-0.5 * THR), THR, ANISO, CROSS, *out)
     _assert_same((n,) + tuple(a[:m] for a in out[:7]) + tuple(a[:mx] for a in out[7:]), ref)
-    _assert_same(k.ridge_pass(G, np.float32(-0.5 * THR), THR, ANISO, CROSS), ref)
+    _assert_same(ek.ridge_pass(G, np.float32(-0.5 * THR), THR, ANISO, CROSS), ref)
 
 
 def test_ridge_pass_into_reports_outputs_too_small_and_fits_exactly_sized_ones():
@@ -101,15 +101,15 @@ def test_ridge_pass_into_reports_outputs_too_small_and_fits_exactly_sized_ones()
     assert m_ref > 300 and mx_ref > 10
     # exactly the room needed: the same outputs
     out = _outputs(max(m_ref, mx_ref))
-    n, m, mx = k.ridge_pass_into(G, np.float32(-0.5 * THR), THR, ANISO, CROSS, *out)
+    n, m, mx = ek.ridge_pass_into(G, np.float32(-0.5 * THR), THR, ANISO, CROSS, *out)
     assert (m, mx) == (m_ref, mx_ref)
     _assert_same((n,) + tuple(a[:m] for a in out[:7]) + tuple(a[:mx] for a in out[7:]), ref)
     # one place too few for the line samples, or for the crossing candidates: m = −1
     small = _outputs(m_ref - 1)
-    assert k.ridge_pass_into(G, np.float32(-0.5 * THR), THR, ANISO, CROSS, *small)[1] == -1
+    assert ek.ridge_pass_into(G, np.float32(-0.5 * THR), THR, ANISO, CROSS, *small)[1] == -1
     i64, f32 = np.int64, np.float32
     few_x = _outputs(m_ref)[:7] + (np.empty(mx_ref - 1, i64), np.empty(mx_ref - 1, i64), np.empty(mx_ref - 1, f32))
-    assert k.ridge_pass_into(G, np.float32(-0.5 * THR), THR, ANISO, CROSS, *few_x)[1] == -1
+    assert ek.ridge_pass_into(G, np.float32(-0.5 * THR), THR, ANISO, CROSS, *few_x)[1] == -1
 
 
 def test_ridges_grow_the_threads_arrays_and_keep_them_per_thread():
@@ -143,7 +143,7 @@ def test_ridge_pass_into_on_images_too_small_for_inner_pixels():
     for shape in ((1, 5), (2, 7), (3, 3), (6, 2)):
         G = np.zeros(shape, np.float32)
         out = _outputs(4)
-        assert k.ridge_pass_into(G, np.float32(-2.0), THR, ANISO, CROSS, *out) == (0, 0, 0)
+        assert ek.ridge_pass_into(G, np.float32(-2.0), THR, ANISO, CROSS, *out) == (0, 0, 0)
 
 
 # --- end_walks: the T walk's binary search written out (decision 0091) ---------------------------------------
@@ -215,7 +215,7 @@ def test_end_walks_match_the_version_calling_sample_at(small_scene):
 
     model = rig_model(small_scene.procam, small_scene.pattern, small_scene.depth_range_mm)
     cap = {}
-    orig = k.end_walks
+    orig = ek.end_walks
 
     def spy(*a):
         cap["args"] = [x.copy() if isinstance(x, np.ndarray) else x for x in a]  # the grid buffer is reused later
@@ -226,7 +226,7 @@ def test_end_walks_match_the_version_calling_sample_at(small_scene):
         extraction.extract_grid(small_scene.image, model)
     finally:
         extraction._k.end_walks = orig
-    seg_seed, t_ids = k.end_walks(*cap["args"])
+    seg_seed, t_ids = ek.end_walks(*cap["args"])
     ref_seed, ref_t = _end_walks_reference(*cap["args"])
     assert (seg_seed >= 0).sum() > 100 and (seg_seed < 0).sum() > 20 and len(t_ids) > 3
     np.testing.assert_array_equal(seg_seed, ref_seed)
@@ -255,10 +255,10 @@ def test_gauss_u8_equals_opencvs_sepfilter2d_to_the_bit():
         for sigma in (1.0, 1.2, 1.45, 1.75, 2.0):
             k_cv = extraction._gauss_kernel(sigma)
             taps = extraction._gauss_taps(sigma)
-            assert len(taps) == len(k_cv) <= k.GAUSS_MAX_TAPS
+            assert len(taps) == len(k_cv) <= ek.GAUSS_MAX_TAPS
             ref = cv2.sepFilter2D(img, cv2.CV_32F, k_cv, k_cv, borderType=cv2.BORDER_REFLECT)
             out = np.full(shape, np.nan, np.float32)
-            k.gauss_u8(img, taps, out)
+            ek.gauss_u8(img, taps, out)
             np.testing.assert_array_equal(out, ref)
 
 
@@ -282,7 +282,7 @@ def test_smooth_takes_the_kernel_or_opencv_with_the_same_result():
     rows = sum(pad[:, j : j + img.shape[1]] * taps[j] for j in range(len(taps)))
     plain = sum(rows[j : j + img.shape[0]] * taps[j] for j in range(len(taps)))
     fused = np.empty(img.shape, np.float32)
-    k.gauss_u8(img, taps, fused)
+    ek.gauss_u8(img, taps, fused)
     assert not np.array_equal(fused, plain)
     np.testing.assert_allclose(fused, plain, rtol=0, atol=1e-3)
 
@@ -298,18 +298,18 @@ def test_smooth_ridges_u8_is_gauss_u8_then_ridge_pass_into():
         taps = extraction._gauss_taps(1.45)
         thr_args = (np.float32(-0.5 * 6.0), np.float32(6.0), ANISO, CROSS)
         G_ref = np.empty(shape, np.float32)
-        k.gauss_u8(img, taps, G_ref)
+        ek.gauss_u8(img, taps, G_ref)
         out_ref = _outputs(img.size)
-        n, m, mx = k.ridge_pass_into(G_ref, *thr_args, *out_ref)
+        n, m, mx = ek.ridge_pass_into(G_ref, *thr_args, *out_ref)
         G = np.full(shape, np.nan, np.float32)
         out = _outputs(img.size)
-        assert k.smooth_ridges_u8(img, taps, G, *thr_args, *out) == (n, m, mx)
+        assert ek.smooth_ridges_u8(img, taps, G, *thr_args, *out) == (n, m, mx)
         np.testing.assert_array_equal(G, G_ref)
         for a, b, cnt in zip(out, out_ref, (m,) * 7 + (mx,) * 3):
             np.testing.assert_array_equal(a[:cnt], b[:cnt])
         if shape[0] > 3:
-            assert n > k._STEGER_BLOCK and m > 50
-            assert k.smooth_ridges_u8(img, taps, G, *thr_args, *_outputs(m - 1))[1] == -1
+            assert n > ek._STEGER_BLOCK and m > 50
+            assert ek.smooth_ridges_u8(img, taps, G, *thr_args, *_outputs(m - 1))[1] == -1
             extraction._workspace.ridge = _outputs(8)
             got = extraction._ridges(np.empty(shape, np.float32), *thr_args, image=img, taps=taps)
             assert got[0] == n and len(got[1]) == m and len(got[8]) == mx
