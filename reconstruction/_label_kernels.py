@@ -606,18 +606,16 @@ def fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, r
     candidates filled in place and returns their number."""
     n = sid.shape[0]
     # Labelled pieces' first and last labelled positions (in trace order).
+    if candidates.shape[0] == 0:
+        return 0
+    lab_pos = np.empty(n, np.intp)
     nlab = 0
     for k in range(n):
         if math.isfinite(index[sid[k]]):
+            lab_pos[nlab] = k
             nlab += 1
-    if nlab == 0 or candidates.shape[0] == 0:
+    if nlab == 0:
         return 0
-    lab_pos = np.empty(nlab, np.intp)
-    m = 0
-    for k in range(n):
-        if math.isfinite(index[sid[k]]):
-            lab_pos[m] = k
-            m += 1
     npl = 0
     for k in range(nlab):
         if k == 0 or piece[lab_pos[k]] != piece[lab_pos[k - 1]]:
@@ -876,16 +874,15 @@ def spread_seeds(sid, piece, ts, seed, seed_jid, index, unlabelled):
         prev_piece = pc
         prev_val = v
     got = near >= 0
-    val = np.empty(n)
-    jid = np.empty(n, np.int64)
+    # one pass (decision 0090): a position's nearest seed is a seed position, whose own nearest seed is
+    # itself, so its seed_jid is rewritten with its own value and reading it after that write is the same
     for k in range(n):
         if got[k]:
-            val[k] = seed[sid[near[k]]]
-            jid[k] = seed_jid[sid[near[k]]]
-    for k in range(n):
-        if got[k]:
-            index[sid[k]] = val[k]
-            seed_jid[sid[k]] = jid[k]
+            s = sid[near[k]]
+            v = seed[s]
+            j = seed_jid[s]
+            index[sid[k]] = v
+            seed_jid[sid[k]] = j
         else:
             seed_jid[sid[k]] = -1
     return got, seeded, conflicting

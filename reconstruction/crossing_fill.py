@@ -132,7 +132,7 @@ def fill_crossings(
     gap_max = cell_px + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.trim_sigma,
                                         min_angle_deg=options.min_angle_deg)
     qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
-    fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
+    fs = fam if family_samples is family else np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
     n_gaps, gaps, acc, c_q, why = _k_gaps(
         q, fam, idx, order, qj, jdir, lab, jsel.astype(np.intp), qs, fs, float(cell_px), float(sigma_px),
         float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),

@@ -346,3 +346,37 @@ def test_sorting_the_packed_keys_gives_the_argsort_order():
             packed, ok = CF._k_pack(key, int(n - 1).bit_length())
             fast += bool(ok and CF._k_unpack(np.sort(packed), sel, int(n - 1).bit_length())[1])
     assert fast >= 15
+
+
+def _spread_seeds_two_passes(sid, piece, ts, seed, seed_jid, index, unlabelled):
+    """spread_seeds before decision 0090: every position's seed value and junction gathered first, then
+    written (NumPy)."""
+    has = seed[sid] != unlabelled
+    near = K.nearest_seed(piece, ts, has)
+    got = near >= 0
+    val = seed[sid[near[got]]].astype(float)
+    jid = seed_jid[sid[near[got]]].copy()
+    index[sid[got]] = val
+    seed_jid[sid[got]] = jid
+    seed_jid[sid[~got]] = -1
+    seeded = len(np.unique(piece[has]))
+    return got, seeded
+
+
+def test_spread_seeds_in_one_pass_equals_the_two_passes():
+    rng = np.random.default_rng(68)
+    for _ in range(50):
+        P = int(rng.integers(1, 600))
+        sid = rng.permutation(P)[: int(rng.integers(1, P + 1))].astype(np.intp)
+        n = len(sid)
+        piece = np.sort(rng.integers(0, max(1, n // 8), n)).astype(np.int64)
+        piece -= piece[0]
+        ts = np.cumsum(rng.uniform(0.5, 2.0, n))
+        seed = np.where(rng.random(P) < 0.1, rng.integers(-5, 5, P), -99).astype(np.int64)
+        seed_jid = rng.integers(-1, 50, P).astype(np.int64)
+        index = np.where(rng.random(P) < 0.3, rng.normal(size=P), np.nan)
+        i0, j0 = index.copy(), seed_jid.copy()
+        got_ref, seeded_ref = _spread_seeds_two_passes(sid, piece, ts, seed, j0, i0, -99)
+        got, seeded, _ = K.spread_seeds(sid, piece, ts, seed, seed_jid, index, -99)
+        assert np.array_equal(got, got_ref) and seeded == seeded_ref
+        assert np.array_equal(index, i0, equal_nan=True) and np.array_equal(seed_jid, j0)
