@@ -1,0 +1,397 @@
+"""Label unlabelled trace pieces from the labelled surface around them (decision 0093).
+
+A labelled sample of line k has a depth: its camera ray on light sheet k. Around an unlabelled piece, the
+labelled samples within about one junction step give the local surface; on a smooth surface the piece's index
+follows from it: its samples' rays meet that surface at projector positions on one line k of its family.
+
+Evidence from one side only is not enough (across a depth edge the neighbours are another surface, and a
+periodic grid lets a wrong k fit by chance; decisions 0049, 0089). Confirming the prediction at the piece's
+crossings (the crossing on the epipolar line of the predicted junction, on both light sheets) was measured
+and does not work on these rigs: the crossings of short unlabelled pieces are located to 1–5 projector px on
+the sensitive sheet, and a check loose enough for them let a piece 8 lines off through (decision 0093). So the
+surface must hold on *both sides* of the piece: the piece is labelled only where it lies inside the labelled
+surface around it, which one plane fits far better than one sheet step:
+
+1. **Local surface.** The labelled samples (either family) within `fit_radius_px` + the piece's half extent of
+   the piece's centre, triangulated on their own sheets (camera-frame depth z), are fitted by a plane in the
+   camera frame: 1/z = a·x + b·y + c in normalised camera coordinates (exact for a plane, least squares).
+2. **Support on both sides.** At least `min_neighbours` neighbours, spread in two directions (the smaller
+   principal spread at least `min_spread` of the radius: one line's samples leave the plane open), and the
+   piece's centre within `max_offset` standard deviations (Mahalanobis, in the neighbours' own covariance)
+   of their centroid: neighbours around the piece, not on one side of it (at the straight border of a
+   labelled region the offset is about 1.6).
+3. **Fit against the sheet step.** The RMS relative depth residual of the fit (of (1/z − fit)·z) at most
+   `max_fit_lines` of the relative depth step between neighbouring light sheets on the piece's middle ray
+   (|z(k+1) − z(k)| / z(k)): neighbours from two surfaces, or a fold, do not fit one plane.
+4. **Prediction.** Each sample's ray meets the plane; its projector point lies within `max_pred_lines` line
+   spacings of one line k of the piece's family, the same k for every sample.
+5. **Working volume.** Every sample of the piece, triangulated on sheet k, lies inside the depth range.
+
+Pieces of at least `min_samples` samples are tried. The samples within `trim_px` of a piece's ends are left
+out (the crossing's light pulls the ridge there; the gap filling puts them back where the line is labelled on
+both sides) and take the junction of the nearest labelled neighbour. Repeated for `rounds` rounds: newly
+labelled pieces are neighbours in the next. The depths of labelled samples are computed once per sample and
+only near candidate pieces.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from reconstruction._continuation_kernels import piece_ends
+from reconstruction._jit import njit
+from reconstruction.continuation import project_nearest_line
+from reconstruction.rigmodel import RigModel
+
+
+
+@njit
+def _k_piece_centres(cand, first, last, sid, q):
+    """Per candidate piece: the mean of its samples (camera px) and its half extent (largest distance of a
+    sample from that mean)."""
+    n = cand.shape[0]
+    cen = np.empty((n, 2))
+    ext = np.zeros(n)
+    for r in range(n):
+        p = cand[r]
+        sx = 0.0
+        sy = 0.0
+        for k in range(first[p], last[p] + 1):
+            sx += q[sid[k], 0]
+            sy += q[sid[k], 1]
+        m = last[p] - first[p] + 1
+        cx = sx / m
+        cy = sy / m
+        e = 0.0
+        for k in range(first[p], last[p] + 1):
+            d = math.hypot(q[sid[k], 0] - cx, q[sid[k], 1] - cy)
+            if d > e:
+                e = d
+        cen[r, 0] = cx
+        cen[r, 1] = cy
+        ext[r] = e
+    return cen, ext
+
+
+@njit
+def _k_support(cen, rad, q, index, min_count, dirty, x0, y0, cell, gw, gh, start, items):
+    """Per centre cen[r]: the labelled samples (finite index) within rad[r], from the frame's bucket grid of the
+    samples (`labelling._sample_grid`: items sample ids grouped by cell): their count, the smaller principal
+    spread (camera px, square root of the smaller eigenvalue of their covariance) and offset2, the
+    Mahalanobis form of the centre against their centroid in that covariance (inf when singular). Centres
+    whose grid cells hold fewer than min_count labelled samples, or none of the cells marked in dirty (gw·gh,
+    bool: where labels changed since the last call), are not scanned (count: the cells' total, or 0)."""
+    n = cen.shape[0]
+    cnt = np.zeros(n, np.int64)
+    spread = np.zeros(n)
+    offset2 = np.full(n, np.inf)
+    # labelled samples per cell: a piece whose cells hold fewer than min_count is not scanned
+    per_cell = np.zeros(gw * gh, np.int64)
+    for b in range(gw * gh):
+        for t in range(start[b], start[b + 1]):
+            if math.isfinite(index[items[t]]):
+                per_cell[b] += 1
+    for r in range(n):
+        cx = cen[r, 0]
+        cy = cen[r, 1]
+        R = rad[r]
+        R2 = R * R
+        gx0 = max(int(math.floor((cx - R - x0) / cell)), 0)
+        gx1 = min(int(math.floor((cx + R - x0) / cell)), gw - 1)
+        gy0 = max(int(math.floor((cy - R - y0) / cell)), 0)
+        gy1 = min(int(math.floor((cy + R - y0) / cell)), gh - 1)
+        upper = 0
+        changed = False
+        for yy in range(gy0, gy1 + 1):
+            for xx in range(gx0, gx1 + 1):
+                upper += per_cell[yy * gw + xx]
+                changed |= dirty[yy * gw + xx]
+        if upper < min_count or not changed:
+            cnt[r] = upper if changed else 0
+            continue
+        m = 0
+        px = py = pxx = pxy = pyy = 0.0
+        for yy in range(gy0, gy1 + 1):
+            for xx in range(gx0, gx1 + 1):
+                b = yy * gw + xx
+                for t in range(start[b], start[b + 1]):
+                    s = items[t]
+                    if not math.isfinite(index[s]):
+                        continue
+                    dx = q[s, 0] - cx
+                    dy = q[s, 1] - cy
+                    if dx * dx + dy * dy > R2:
+                        continue
+                    m += 1
+                    px += dx
+                    py += dy
+                    pxx += dx * dx
+                    pxy += dx * dy
+                    pyy += dy * dy
+        cnt[r] = m
+        if m < 3:
+            continue
+        mx = px / m
+        my = py / m
+        cxx = pxx / m - mx * mx
+        cxy = pxy / m - mx * my
+        cyy = pyy / m - my * my
+        tr = 0.5 * (cxx + cyy)
+        disc = math.sqrt(max(0.25 * (cxx - cyy) ** 2 + cxy * cxy, 0.0))
+        spread[r] = math.sqrt(max(tr - disc, 0.0))
+        dc = cxx * cyy - cxy * cxy
+        if dc > 0.0:
+            offset2[r] = (cyy * mx * mx - 2.0 * cxy * mx * my + cxx * my * my) / dc
+    return cnt, spread, offset2
+
+
+@njit
+def _k_mark_needed(cen, rad, q, index, x0, y0, cell, gw, gh, start, items, need):
+    """Marks need[s] for the labelled samples s (finite index[s]) within rad[r] of any centre cen[r] (the
+    frame's bucket grid, as `_k_support`)."""
+    for r in range(cen.shape[0]):
+        cx = cen[r, 0]
+        cy = cen[r, 1]
+        R = rad[r]
+        R2 = R * R
+        gx0 = max(int(math.floor((cx - R - x0) / cell)), 0)
+        gx1 = min(int(math.floor((cx + R - x0) / cell)), gw - 1)
+        gy0 = max(int(math.floor((cy - R - y0) / cell)), 0)
+        gy1 = min(int(math.floor((cy + R - y0) / cell)), gh - 1)
+        for yy in range(gy0, gy1 + 1):
+            for xx in range(gx0, gx1 + 1):
+                b = yy * gw + xx
+                for t in range(start[b], start[b + 1]):
+                    s = items[t]
+                    if not math.isfinite(index[s]):
+                        continue
+                    dx = q[s, 0] - cx
+                    dy = q[s, 1] - cy
+                    if dx * dx + dy * dy <= R2:
+                        need[s] = True
+
+
+@njit
+def _k_fit_planes(cen, rad, xy_cen, q, xy, w, index, x0, y0, cell, gw, gh, start, items):
+    """Per centre r: the least-squares plane w = c + a·(x − xc) + b·(y − yc) of the labelled samples within
+    rad[r] (w = 1/z camera-frame depth, (x, y) normalised camera coordinates, (xc, yc) = xy_cen[r]; the
+    frame's bucket grid, as `_k_support`). Returns coef (n, 3) = (a, b, c) (NaN where singular or fewer than
+    3 neighbours), the RMS relative residual of (w − fit)/w, and near: the neighbour nearest the centre
+    (sample id, −1: none)."""
+    n = cen.shape[0]
+    coef = np.full((n, 3), np.nan)
+    rms = np.full(n, np.inf)
+    near = np.full(n, -1, np.int64)
+    for r in range(n):
+        cx = cen[r, 0]
+        cy = cen[r, 1]
+        R = rad[r]
+        R2 = R * R
+        xc = xy_cen[r, 0]
+        yc = xy_cen[r, 1]
+        gx0 = max(int(math.floor((cx - R - x0) / cell)), 0)
+        gx1 = min(int(math.floor((cx + R - x0) / cell)), gw - 1)
+        gy0 = max(int(math.floor((cy - R - y0) / cell)), 0)
+        gy1 = min(int(math.floor((cy + R - y0) / cell)), gh - 1)
+        m = 0
+        dn = np.inf
+        su = sv = suu = suv = svv = sw = suw = svw = 0.0
+        for yy in range(gy0, gy1 + 1):
+            for xx in range(gx0, gx1 + 1):
+                b = yy * gw + xx
+                for t in range(start[b], start[b + 1]):
+                    s = items[t]
+                    if not (math.isfinite(index[s]) and math.isfinite(w[s])):
+                        continue
+                    dx = q[s, 0] - cx
+                    dy = q[s, 1] - cy
+                    d2 = dx * dx + dy * dy
+                    if d2 > R2:
+                        continue
+                    if d2 < dn:
+                        dn = d2
+                        near[r] = s
+                    u = xy[s, 0] - xc
+                    v = xy[s, 1] - yc
+                    m += 1
+                    su += u
+                    sv += v
+                    suu += u * u
+                    suv += u * v
+                    svv += v * v
+                    sw += w[s]
+                    suw += u * w[s]
+                    svw += v * w[s]
+        if m < 3:
+            continue
+        # [suu suv su; suv svv sv; su sv m] (a b c)ᵀ = (suw svw sw)ᵀ by Cramer's rule
+        A00, A01, A02 = suu, suv, su
+        A11, A12 = svv, sv
+        A22 = float(m)
+        det = A00 * (A11 * A22 - A12 * A12) - A01 * (A01 * A22 - A12 * A02) + A02 * (A01 * A12 - A11 * A02)
+        if not abs(det) > 0.0:
+            continue
+        b0, b1, b2 = suw, svw, sw
+        a = (b0 * (A11 * A22 - A12 * A12) - A01 * (b1 * A22 - A12 * b2) + A02 * (b1 * A12 - A11 * b2)) / det
+        bb = (A00 * (b1 * A22 - A12 * b2) - b0 * (A01 * A22 - A12 * A02) + A02 * (A01 * b2 - b1 * A02)) / det
+        c = (A00 * (A11 * b2 - b1 * A12) - A01 * (A01 * b2 - b1 * A02) + b0 * (A01 * A12 - A11 * A02)) / det
+        coef[r, 0] = a
+        coef[r, 1] = bb
+        coef[r, 2] = c
+        e2 = 0.0
+        for yy in range(gy0, gy1 + 1):
+            for xx in range(gx0, gx1 + 1):
+                b = yy * gw + xx
+                for t in range(start[b], start[b + 1]):
+                    s = items[t]
+                    if not (math.isfinite(index[s]) and math.isfinite(w[s])):
+                        continue
+                    dx = q[s, 0] - cx
+                    dy = q[s, 1] - cy
+                    if dx * dx + dy * dy > R2:
+                        continue
+                    f = c + a * (xy[s, 0] - xc) + bb * (xy[s, 1] - yc)
+                    d = (w[s] - f) / w[s]
+                    e2 += d * d
+        rms[r] = math.sqrt(e2 / m)
+    return coef, rms, near
+
+
+def label_from_surface(
+    q: np.ndarray,
+    fam: np.ndarray,
+    sid: np.ndarray,
+    piece: np.ndarray,
+    ts: np.ndarray,
+    tangent: np.ndarray,
+    index: np.ndarray,
+    seed_jid: np.ndarray,
+    *,
+    model: RigModel,
+    depth_range_mm: tuple[float, float],
+    grid: tuple,
+    fit_radius_px: float,
+    trim_px: float = 0.0,
+    min_samples: int = 4,
+    anchor: int = 3,
+    rounds: int = 3,
+    min_neighbours: int = 8,
+    min_spread: float = 0.15,
+    max_offset: float = 1.0,
+    max_fit_lines: float = 0.1,
+    max_pred_lines: float = 0.25,
+) -> dict:
+    """Label unlabelled pieces that lie inside a labelled, locally plane surface which predicts their index
+    (module doc).
+
+    q (P, 2) camera px, fam (P,) 1/2 of all samples; the traces as `labelling.label_samples` builds them: sid
+    (n,) sample ids by piece and position, piece (n,) non-decreasing piece ids, ts (n,) position along the piece
+    (px), tangent (n, 2) unit. index (P,) float (NaN: unlabelled) and seed_jid (P,) int are written in place
+    (seed_jid: that of the labelled neighbour nearest the piece's centre). grid: the frame's bucket grid of the
+    valid samples (`labelling._sample_grid`; any cell size, the first seven entries are read). fit_radius_px: the neighbourhood
+    beyond the piece's half extent (camera px, about one junction step). max_offset: standard deviations
+    (the square root of the Mahalanobis form). Returns counts: pieces and samples labelled, pieces tried
+    (unlabelled, long enough), pieces with a fit and with a prediction."""
+    stats = {"pieces": 0, "samples": 0, "tried": 0, "fitted": 0, "predicted": 0}
+    n = len(piece)
+    if n == 0:
+        return stats
+    n_p = int(piece[-1]) + 1
+    z_lo, z_hi = float(depth_range_mm[0]), float(depth_range_mm[1])
+    pat = model.pattern
+    spacing = np.array([np.min(np.diff(np.asarray(pat.offsets_px(f), np.float64))) / np.hypot(1.0, n_f)
+                        for f, n_f in ((1, pat.n1), (2, pat.n2))])
+    R = model.procam.R_proj_cam
+    t = model.procam.t_proj_cam
+    w_lab = np.full(len(q), np.nan)  # 1/z of the labelled samples, computed once per sample
+    xy_lab = np.full((len(q), 2), np.nan)
+    _, _, end_pos, labelled, _, _ = piece_ends(q, sid, piece, tangent, index, seed_jid, n_p, int(anchor))
+    first, last = end_pos[:n_p], end_pos[n_p:]
+    count = last - first + 1
+    open_p = ~labelled & (count >= min_samples)
+    x0, y0, cell, gw, gh = grid[:5]
+    dirty = np.ones(gw * gh, np.bool_)  # the cells where labels changed: all at first
+    for _ in range(rounds):
+        cand = np.flatnonzero(open_p)
+        if len(cand) == 0:
+            break
+        stats["tried"] += len(cand)
+        # 2. support on both sides (camera px only, before any depth is computed)
+        cen, ext = _k_piece_centres(cand, first, last, sid, q)
+        rad = ext + float(fit_radius_px)
+        cnt, spread, offset2 = _k_support(cen, rad, q, index, int(min_neighbours), dirty, *grid[:7])
+        sup = np.flatnonzero((cnt >= min_neighbours) & (spread >= min_spread * rad) & (offset2 <= max_offset * max_offset))
+        if len(sup) == 0:
+            break
+        cand, cen, rad = cand[sup], cen[sup], rad[sup]
+        # 1. the local surface, from the depths of the labelled samples around (each computed once)
+        need = np.zeros(len(q), bool)
+        _k_mark_needed(cen, rad, q, index, *grid[:7], need)
+        todo = np.flatnonzero(need & ~np.isfinite(w_lab))
+        if len(todo):
+            p, z, _, _ = model.sheet_check(q[todo], fam[todo], index[todo].astype(np.int64))
+            X = (p - t) @ R  # camera frame
+            ok = np.isfinite(z) & (X[:, 2] > 0)
+            w_lab[todo[ok]] = 1.0 / X[ok, 2]
+            xy_lab[todo[ok]] = X[ok, :2] / X[ok, 2:3]
+        xy_cen = model.cam_normalised(cen)
+        coef, rms, near = _k_fit_planes(cen, rad, xy_cen, q, xy_lab, w_lab, index, *grid[:7])
+        fr = np.flatnonzero(np.isfinite(coef).all(axis=1))
+        stats["fitted"] += len(fr)
+        if len(fr) == 0:
+            break
+        # 4. the prediction at every sample of those pieces
+        pc = cand[fr]
+        lens = count[pc]
+        starts = np.cumsum(lens) - lens
+        owner = np.repeat(np.arange(len(pc)), lens)
+        pos = np.repeat(first[pc], lens) + (np.arange(lens.sum()) - np.repeat(starts, lens))
+        s_all = sid[pos]
+        xy = model.cam_normalised(q[s_all])
+        cf = coef[fr][owner]
+        xc = xy_cen[fr][owner]
+        wp = cf[:, 2] + cf[:, 0] * (xy[:, 0] - xc[:, 0]) + cf[:, 1] * (xy[:, 1] - xc[:, 1])
+        front = wp > 0
+        zp = 1.0 / np.where(front, wp, 1.0)
+        p_pred = np.column_stack([xy * zp[:, None], zp]) @ R.T + t
+        f_s = fam[s_all].astype(np.int64)
+        kk, dist = project_nearest_line(model, f_s, p_pred)
+        dist = np.where(front, dist / spacing[f_s - 1], np.inf)
+        k_min = np.minimum.reduceat(kk, starts)
+        ok = (k_min == np.maximum.reduceat(kk, starts)) & (np.maximum.reduceat(dist, starts) <= max_pred_lines)
+        # a line of the piece's family keeps its index along the piece: the predicted fractional index may
+        # drift by at most max_pred_lines per junction step of length (a piece of the other family's line,
+        # given this family by mistake, drifts by a whole line per junction step)
+        fi = model.fractional_index(f_s, model.procam.projector.project(p_pred))
+        drift = np.maximum.reduceat(fi, starts) - np.minimum.reduceat(fi, starts)
+        length = np.maximum(ts[last[pc]] - ts[first[pc]], 1.0)
+        ok &= drift * (model.junction_step_cam_px / length) <= max_pred_lines
+        # 3. the fit against the depth step between neighbouring sheets, on each piece's middle ray
+        s_mid = s_all[starts + lens // 2]
+        f_mid = fam[s_mid].astype(np.int64)
+        _, z0, _, _ = model.sheet_check(q[s_mid], f_mid, k_min)
+        _, z1, _, _ = model.sheet_check(q[s_mid], f_mid, k_min + 1)
+        ok &= rms[fr] <= max_fit_lines * np.abs(z1 - z0) / z0
+        # 5. the working volume on sheet k, every sample of the piece
+        _, zs, _, _ = model.sheet_check(q[s_all], f_s, k_min[owner])
+        outside = ~((zs >= z_lo) & (zs <= z_hi))
+        ok &= np.bincount(owner, weights=outside, minlength=len(pc)) == 0
+        stats["predicted"] += int(ok.sum())
+        # write, leaving out the samples within trim_px of the piece's ends
+        keep = ok[owner] & (np.minimum(ts[pos] - ts[first[pc][owner]], ts[last[pc][owner]] - ts[pos]) >= trim_px)
+        w = np.flatnonzero(keep)
+        if len(w) == 0:
+            break
+        index[s_all[w]] = k_min[owner[w]]
+        seed_jid[s_all[w]] = seed_jid[near[fr][owner[w]]]
+        gx = np.clip(((q[s_all[w], 0] - x0) // cell).astype(np.intp), 0, gw - 1)
+        gy = np.clip(((q[s_all[w], 1] - y0) // cell).astype(np.intp), 0, gh - 1)
+        dirty[:] = False
+        dirty[gy * gw + gx] = True
+        done = np.unique(owner[w])
+        open_p[pc[done]] = False
+        stats["pieces"] += int(done.size)
+        stats["samples"] += int(len(w))
+    return stats
