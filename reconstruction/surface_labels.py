@@ -76,186 +76,181 @@ def _k_piece_centres(cand, first, last, sid, q):
 
 
 @njit
-def _k_support(cen, rad, q, index, min_count, dirty, x0, y0, cell, gw, gh, start, items):
-    """Per centre cen[r]: the labelled samples (finite index) within rad[r], from the frame's bucket grid of the
-    samples (`labelling._sample_grid`: items sample ids grouped by cell): their count, the smaller principal
-    spread (camera px, square root of the smaller eigenvalue of their covariance) and offset2, the
-    Mahalanobis form of the centre against their centroid in that covariance (inf when singular). Centres
-    whose grid cells hold fewer than min_count labelled samples, or none of the cells marked in dirty (gw·gh,
-    bool: where labels changed since the last call), are not scanned (count: the cells' total, or 0)."""
+def _k_cell_box(cx, cy, R, x0, y0, cell, gw, gh):
+    """The grid cells (inclusive ranges gx0..gx1, gy0..gy1) that the square of half side R around (cx, cy)
+    touches: a piece's neighbourhood."""
+    gx0 = max(int(math.floor((cx - R - x0) / cell)), 0)
+    gx1 = min(int(math.floor((cx + R - x0) / cell)), gw - 1)
+    gy0 = max(int(math.floor((cy - R - y0) / cell)), 0)
+    gy1 = min(int(math.floor((cy + R - y0) / cell)), gh - 1)
+    return gx0, gx1, gy0, gy1
+
+
+@njit
+def _k_cell_sums(q, index, gw, gh, start, items):
+    """Per grid cell, over its labelled samples (finite index): count, Σx, Σy, Σx², Σxy, Σy² (camera px),
+    (gw·gh, 6)."""
+    out = np.zeros((gw * gh, 6))
+    for b in range(gw * gh):
+        for t in range(start[b], start[b + 1]):
+            s = items[t]
+            if math.isfinite(index[s]):
+                x = q[s, 0]
+                y = q[s, 1]
+                out[b, 0] += 1.0
+                out[b, 1] += x
+                out[b, 2] += y
+                out[b, 3] += x * x
+                out[b, 4] += x * y
+                out[b, 5] += y * y
+    return out
+
+
+@njit
+def _k_support(cen, rad, sums, dirty, x0, y0, cell, gw, gh):
+    """Per piece centre cen[r]: its neighbourhood's labelled samples (the grid cells the square of half side
+    rad[r] touches, from the per-cell sums of `_k_cell_sums`): their count, the smaller principal spread
+    (camera px, square root of the smaller eigenvalue of their covariance) and offset2, the Mahalanobis form
+    of the centre against their centroid in that covariance (inf when singular or fewer than 3). Centres
+    whose cells include none marked in dirty (gw·gh, bool: where labels changed since the last call) are
+    skipped (count 0)."""
     n = cen.shape[0]
     cnt = np.zeros(n, np.int64)
     spread = np.zeros(n)
     offset2 = np.full(n, np.inf)
-    # labelled samples per cell: a piece whose cells hold fewer than min_count is not scanned
-    per_cell = np.zeros(gw * gh, np.int64)
-    for b in range(gw * gh):
-        for t in range(start[b], start[b + 1]):
-            if math.isfinite(index[items[t]]):
-                per_cell[b] += 1
     for r in range(n):
         cx = cen[r, 0]
         cy = cen[r, 1]
-        R = rad[r]
-        R2 = R * R
-        gx0 = max(int(math.floor((cx - R - x0) / cell)), 0)
-        gx1 = min(int(math.floor((cx + R - x0) / cell)), gw - 1)
-        gy0 = max(int(math.floor((cy - R - y0) / cell)), 0)
-        gy1 = min(int(math.floor((cy + R - y0) / cell)), gh - 1)
-        upper = 0
+        gx0, gx1, gy0, gy1 = _k_cell_box(cx, cy, rad[r], x0, y0, cell, gw, gh)
         changed = False
-        for yy in range(gy0, gy1 + 1):
-            for xx in range(gx0, gx1 + 1):
-                upper += per_cell[yy * gw + xx]
-                changed |= dirty[yy * gw + xx]
-        if upper < min_count or not changed:
-            cnt[r] = upper if changed else 0
-            continue
-        m = 0
-        px = py = pxx = pxy = pyy = 0.0
+        m = sx = sy = sxx = sxy = syy = 0.0
         for yy in range(gy0, gy1 + 1):
             for xx in range(gx0, gx1 + 1):
                 b = yy * gw + xx
-                for t in range(start[b], start[b + 1]):
-                    s = items[t]
-                    if not math.isfinite(index[s]):
-                        continue
-                    dx = q[s, 0] - cx
-                    dy = q[s, 1] - cy
-                    if dx * dx + dy * dy > R2:
-                        continue
-                    m += 1
-                    px += dx
-                    py += dy
-                    pxx += dx * dx
-                    pxy += dx * dy
-                    pyy += dy * dy
-        cnt[r] = m
-        if m < 3:
+                changed |= dirty[b]
+                m += sums[b, 0]
+                sx += sums[b, 1]
+                sy += sums[b, 2]
+                sxx += sums[b, 3]
+                sxy += sums[b, 4]
+                syy += sums[b, 5]
+        if not changed:
             continue
-        mx = px / m
-        my = py / m
-        cxx = pxx / m - mx * mx
-        cxy = pxy / m - mx * my
-        cyy = pyy / m - my * my
+        cnt[r] = int(m)
+        if m < 3.0:
+            continue
+        mx = sx / m
+        my = sy / m
+        cxx = max(sxx / m - mx * mx, 0.0)
+        cxy = sxy / m - mx * my
+        cyy = max(syy / m - my * my, 0.0)
         tr = 0.5 * (cxx + cyy)
         disc = math.sqrt(max(0.25 * (cxx - cyy) ** 2 + cxy * cxy, 0.0))
         spread[r] = math.sqrt(max(tr - disc, 0.0))
         dc = cxx * cyy - cxy * cxy
         if dc > 0.0:
-            offset2[r] = (cyy * mx * mx - 2.0 * cxy * mx * my + cxx * my * my) / dc
+            dx = mx - cx
+            dy = my - cy
+            offset2[r] = (cyy * dx * dx - 2.0 * cxy * dx * dy + cxx * dy * dy) / dc
     return cnt, spread, offset2
 
 
 @njit
-def _k_mark_needed(cen, rad, q, index, x0, y0, cell, gw, gh, start, items, need):
-    """Marks need[s] for the labelled samples s (finite index[s]) within rad[r] of any centre cen[r] (the
-    frame's bucket grid, as `_k_support`)."""
+def _k_mark_needed(cen, rad, index, x0, y0, cell, gw, gh, start, items, need):
+    """Marks need[s] for the labelled samples s (finite index[s]) in the neighbourhood of any centre cen[r]
+    (the cells `_k_support` sums)."""
     for r in range(cen.shape[0]):
-        cx = cen[r, 0]
-        cy = cen[r, 1]
-        R = rad[r]
-        R2 = R * R
-        gx0 = max(int(math.floor((cx - R - x0) / cell)), 0)
-        gx1 = min(int(math.floor((cx + R - x0) / cell)), gw - 1)
-        gy0 = max(int(math.floor((cy - R - y0) / cell)), 0)
-        gy1 = min(int(math.floor((cy + R - y0) / cell)), gh - 1)
+        gx0, gx1, gy0, gy1 = _k_cell_box(cen[r, 0], cen[r, 1], rad[r], x0, y0, cell, gw, gh)
         for yy in range(gy0, gy1 + 1):
             for xx in range(gx0, gx1 + 1):
                 b = yy * gw + xx
                 for t in range(start[b], start[b + 1]):
                     s = items[t]
-                    if not math.isfinite(index[s]):
-                        continue
-                    dx = q[s, 0] - cx
-                    dy = q[s, 1] - cy
-                    if dx * dx + dy * dy <= R2:
+                    if math.isfinite(index[s]):
                         need[s] = True
 
 
 @njit
-def _k_fit_planes(cen, rad, xy_cen, q, xy, w, index, x0, y0, cell, gw, gh, start, items):
-    """Per centre r: the least-squares plane w = c + a·(x − xc) + b·(y − yc) of the labelled samples within
-    rad[r] (w = 1/z camera-frame depth, (x, y) normalised camera coordinates, (xc, yc) = xy_cen[r]; the
-    frame's bucket grid, as `_k_support`). Returns coef (n, 3) = (a, b, c) (NaN where singular or fewer than
-    3 neighbours), the RMS relative residual of (w − fit)/w, and near: the neighbour nearest the centre
-    (sample id, −1: none)."""
+def _k_fit_planes(cen, rad, q, xy, w, index, x0, y0, cell, gw, gh, start, items):
+    """Per centre r: the least-squares plane w = c + a·u + b·v of the labelled samples in its neighbourhood
+    (the cells `_k_support` sums; w = 1/z camera-frame depth, (u, v) = (x − xr, y − yr) normalised camera
+    coordinates from the first such sample's (xr, yr)), in one pass: the normal equations and the sums that
+    give the relative residual Σ((w − fit)/w)² = m − 2·Σfit/w + Σfit²/w² without a second pass. Returns coef
+    (n, 5) = (a, b, c, xr, yr) (NaN where singular or fewer than 3 samples with a depth), the RMS relative
+    residual, and near: the neighbour nearest the centre (sample id, −1: none)."""
     n = cen.shape[0]
-    coef = np.full((n, 3), np.nan)
+    coef = np.full((n, 5), np.nan)
     rms = np.full(n, np.inf)
     near = np.full(n, -1, np.int64)
     for r in range(n):
         cx = cen[r, 0]
         cy = cen[r, 1]
-        R = rad[r]
-        R2 = R * R
-        xc = xy_cen[r, 0]
-        yc = xy_cen[r, 1]
-        gx0 = max(int(math.floor((cx - R - x0) / cell)), 0)
-        gx1 = min(int(math.floor((cx + R - x0) / cell)), gw - 1)
-        gy0 = max(int(math.floor((cy - R - y0) / cell)), 0)
-        gy1 = min(int(math.floor((cy + R - y0) / cell)), gh - 1)
+        gx0, gx1, gy0, gy1 = _k_cell_box(cx, cy, rad[r], x0, y0, cell, gw, gh)
         m = 0
         dn = np.inf
+        xr = yr = 0.0
         su = sv = suu = suv = svv = sw = suw = svw = 0.0
+        i1 = iu = iv = j1 = ju = jv = juu = juv = jvv = 0.0  # Σ(1, u, v)/w and Σ(1, u, v, u², uv, v²)/w²
         for yy in range(gy0, gy1 + 1):
             for xx in range(gx0, gx1 + 1):
                 b = yy * gw + xx
                 for t in range(start[b], start[b + 1]):
                     s = items[t]
-                    if not (math.isfinite(index[s]) and math.isfinite(w[s])):
+                    ws = w[s]
+                    if not (math.isfinite(index[s]) and math.isfinite(ws)):
                         continue
-                    dx = q[s, 0] - cx
-                    dy = q[s, 1] - cy
-                    d2 = dx * dx + dy * dy
-                    if d2 > R2:
-                        continue
+                    d2 = (q[s, 0] - cx) ** 2 + (q[s, 1] - cy) ** 2
                     if d2 < dn:
                         dn = d2
                         near[r] = s
-                    u = xy[s, 0] - xc
-                    v = xy[s, 1] - yc
+                    if m == 0:
+                        xr = xy[s, 0]
+                        yr = xy[s, 1]
                     m += 1
+                    u = xy[s, 0] - xr
+                    v = xy[s, 1] - yr
                     su += u
                     sv += v
                     suu += u * u
                     suv += u * v
                     svv += v * v
-                    sw += w[s]
-                    suw += u * w[s]
-                    svw += v * w[s]
+                    sw += ws
+                    suw += u * ws
+                    svw += v * ws
+                    g = 1.0 / ws
+                    i1 += g
+                    iu += u * g
+                    iv += v * g
+                    g2 = g * g
+                    j1 += g2
+                    ju += u * g2
+                    jv += v * g2
+                    juu += u * u * g2
+                    juv += u * v * g2
+                    jvv += v * v * g2
         if m < 3:
             continue
-        # [suu suv su; suv svv sv; su sv m] (a b c)ᵀ = (suw svw sw)ᵀ by Cramer's rule
-        A00, A01, A02 = suu, suv, su
-        A11, A12 = svv, sv
-        A22 = float(m)
-        det = A00 * (A11 * A22 - A12 * A12) - A01 * (A01 * A22 - A12 * A02) + A02 * (A01 * A12 - A11 * A02)
-        if not abs(det) > 0.0:
+        # [suu suv su; suv svv sv; su sv m] (a b c)ᵀ = (suw svw sw)ᵀ, centred: subtract the means
+        fm = float(m)
+        cuu = suu - su * su / fm
+        cuv = suv - su * sv / fm
+        cvv = svv - sv * sv / fm
+        cuw = suw - su * sw / fm
+        cvw = svw - sv * sw / fm
+        det = cuu * cvv - cuv * cuv
+        if not det > 0.0:
             continue
-        b0, b1, b2 = suw, svw, sw
-        a = (b0 * (A11 * A22 - A12 * A12) - A01 * (b1 * A22 - A12 * b2) + A02 * (b1 * A12 - A11 * b2)) / det
-        bb = (A00 * (b1 * A22 - A12 * b2) - b0 * (A01 * A22 - A12 * A02) + A02 * (A01 * b2 - b1 * A02)) / det
-        c = (A00 * (A11 * b2 - b1 * A12) - A01 * (A01 * b2 - b1 * A02) + b0 * (A01 * A12 - A11 * A02)) / det
+        a = (cuw * cvv - cvw * cuv) / det
+        bb = (cvw * cuu - cuw * cuv) / det
+        c = (sw - a * su - bb * sv) / fm
         coef[r, 0] = a
         coef[r, 1] = bb
         coef[r, 2] = c
-        e2 = 0.0
-        for yy in range(gy0, gy1 + 1):
-            for xx in range(gx0, gx1 + 1):
-                b = yy * gw + xx
-                for t in range(start[b], start[b + 1]):
-                    s = items[t]
-                    if not (math.isfinite(index[s]) and math.isfinite(w[s])):
-                        continue
-                    dx = q[s, 0] - cx
-                    dy = q[s, 1] - cy
-                    if dx * dx + dy * dy > R2:
-                        continue
-                    f = c + a * (xy[s, 0] - xc) + bb * (xy[s, 1] - yc)
-                    d = (w[s] - f) / w[s]
-                    e2 += d * d
-        rms[r] = math.sqrt(e2 / m)
+        coef[r, 3] = xr
+        coef[r, 4] = yr
+        f_w = c * i1 + a * iu + bb * iv
+        f2_w2 = c * c * j1 + a * a * juu + bb * bb * jvv + 2.0 * (c * a * ju + c * bb * jv + a * bb * juv)
+        rms[r] = math.sqrt(max(fm - 2.0 * f_w + f2_w2, 0.0) / fm)
     return coef, rms, near
 
 
@@ -311,8 +306,9 @@ def label_from_surface(
     first, last = end_pos[:n_p], end_pos[n_p:]
     count = last - first + 1
     open_p = ~labelled & (count >= min_samples)
-    x0, y0, cell, gw, gh = grid[:5]
+    x0, y0, cell, gw, gh, start, items = grid[:7]
     dirty = np.ones(gw * gh, np.bool_)  # the cells where labels changed: all at first
+    sums = _k_cell_sums(q, index, gw, gh, start, items)  # per cell, over its labelled samples
     for _ in range(rounds):
         cand = np.flatnonzero(open_p)
         if len(cand) == 0:
@@ -321,14 +317,14 @@ def label_from_surface(
         # 2. support on both sides (camera px only, before any depth is computed)
         cen, ext = _k_piece_centres(cand, first, last, sid, q)
         rad = ext + float(fit_radius_px)
-        cnt, spread, offset2 = _k_support(cen, rad, q, index, int(min_neighbours), dirty, *grid[:7])
+        cnt, spread, offset2 = _k_support(cen, rad, sums, dirty, x0, y0, cell, gw, gh)
         sup = np.flatnonzero((cnt >= min_neighbours) & (spread >= min_spread * rad) & (offset2 <= max_offset * max_offset))
         if len(sup) == 0:
             break
         cand, cen, rad = cand[sup], cen[sup], rad[sup]
         # 1. the local surface, from the depths of the labelled samples around (each computed once)
         need = np.zeros(len(q), bool)
-        _k_mark_needed(cen, rad, q, index, *grid[:7], need)
+        _k_mark_needed(cen, rad, index, *grid[:7], need)
         todo = np.flatnonzero(need & ~np.isfinite(w_lab))
         if len(todo):
             p, z, _, _ = model.sheet_check(q[todo], fam[todo], index[todo].astype(np.int64))
@@ -336,9 +332,8 @@ def label_from_surface(
             ok = np.isfinite(z) & (X[:, 2] > 0)
             w_lab[todo[ok]] = 1.0 / X[ok, 2]
             xy_lab[todo[ok]] = X[ok, :2] / X[ok, 2:3]
-        xy_cen = model.cam_normalised(cen)
-        coef, rms, near = _k_fit_planes(cen, rad, xy_cen, q, xy_lab, w_lab, index, *grid[:7])
-        fr = np.flatnonzero(np.isfinite(coef).all(axis=1))
+        coef, rms, near = _k_fit_planes(cen, rad, q, xy_lab, w_lab, index, *grid[:7])
+        fr = np.flatnonzero(np.isfinite(coef[:, 0]))
         stats["fitted"] += len(fr)
         if len(fr) == 0:
             break
@@ -351,31 +346,32 @@ def label_from_surface(
         s_all = sid[pos]
         xy = model.cam_normalised(q[s_all])
         cf = coef[fr][owner]
-        xc = xy_cen[fr][owner]
-        wp = cf[:, 2] + cf[:, 0] * (xy[:, 0] - xc[:, 0]) + cf[:, 1] * (xy[:, 1] - xc[:, 1])
+        wp = cf[:, 2] + cf[:, 0] * (xy[:, 0] - cf[:, 3]) + cf[:, 1] * (xy[:, 1] - cf[:, 4])
         front = wp > 0
         zp = 1.0 / np.where(front, wp, 1.0)
         p_pred = np.column_stack([xy * zp[:, None], zp]) @ R.T + t
         f_s = fam[s_all].astype(np.int64)
         kk, dist = project_nearest_line(model, f_s, p_pred)
         dist = np.where(front, dist / spacing[f_s - 1], np.inf)
-        k_min = np.minimum.reduceat(kk, starts)
-        ok = (k_min == np.maximum.reduceat(kk, starts)) & (np.maximum.reduceat(dist, starts) <= max_pred_lines)
-        # a line of the piece's family keeps its index along the piece: the predicted fractional index may
-        # drift by at most max_pred_lines per junction step of length (a piece of the other family's line,
-        # given this family by mistake, drifts by a whole line per junction step)
-        fi = model.fractional_index(f_s, model.procam.projector.project(p_pred))
-        drift = np.maximum.reduceat(fi, starts) - np.minimum.reduceat(fi, starts)
+        k = np.minimum.reduceat(kk, starts)
+        ok = (k == np.maximum.reduceat(kk, starts)) & (np.maximum.reduceat(dist, starts) <= max_pred_lines)
+        # the samples on sheet k, and each piece's middle sample on sheet k + 1: one call
+        mid = starts + lens // 2
+        _, zz, _, _ = model.sheet_check(np.concatenate((q[s_all], q[s_all[mid]])), np.concatenate((f_s, f_s[mid])),
+                                        np.concatenate((k[owner], k + 1)))
+        zs, z1 = zz[: len(s_all)], zz[len(s_all):]
+        z0 = zs[mid]
+        step = np.abs(z1 - z0)  # the depth between neighbouring sheets on the middle ray (mm)
+        # 3. the fit against that step
+        ok &= rms[fr] <= max_fit_lines * step / z0
+        # a line of the piece's family keeps its index along the piece: the predicted position, in sheet
+        # steps from sheet k, may drift by at most max_pred_lines per junction step of the piece's length (a
+        # piece of the other family's line, given this family by mistake, drifts by a whole line per step)
+        off = np.where(front, (zp - zs) / np.maximum(step, 1e-9)[owner], 0.0)
+        drift = np.maximum.reduceat(off, starts) - np.minimum.reduceat(off, starts)
         length = np.maximum(ts[last[pc]] - ts[first[pc]], 1.0)
         ok &= drift * (model.junction_step_cam_px / length) <= max_pred_lines
-        # 3. the fit against the depth step between neighbouring sheets, on each piece's middle ray
-        s_mid = s_all[starts + lens // 2]
-        f_mid = fam[s_mid].astype(np.int64)
-        _, z0, _, _ = model.sheet_check(q[s_mid], f_mid, k_min)
-        _, z1, _, _ = model.sheet_check(q[s_mid], f_mid, k_min + 1)
-        ok &= rms[fr] <= max_fit_lines * np.abs(z1 - z0) / z0
         # 5. the working volume on sheet k, every sample of the piece
-        _, zs, _, _ = model.sheet_check(q[s_all], f_s, k_min[owner])
         outside = ~((zs >= z_lo) & (zs <= z_hi))
         ok &= np.bincount(owner, weights=outside, minlength=len(pc)) == 0
         stats["predicted"] += int(ok.sum())
@@ -384,12 +380,15 @@ def label_from_surface(
         w = np.flatnonzero(keep)
         if len(w) == 0:
             break
-        index[s_all[w]] = k_min[owner[w]]
+        index[s_all[w]] = k[owner[w]]
         seed_jid[s_all[w]] = seed_jid[near[fr][owner[w]]]
         gx = np.clip(((q[s_all[w], 0] - x0) // cell).astype(np.intp), 0, gw - 1)
         gy = np.clip(((q[s_all[w], 1] - y0) // cell).astype(np.intp), 0, gh - 1)
         dirty[:] = False
         dirty[gy * gw + gx] = True
+        qw = q[s_all[w]]
+        np.add.at(sums, gy * gw + gx, np.column_stack([np.ones(len(w)), qw[:, 0], qw[:, 1], qw[:, 0] ** 2, qw[:, 0] * qw[:, 1],
+                                                       qw[:, 1] ** 2]))
         done = np.unique(owner[w])
         open_p[pc[done]] = False
         stats["pieces"] += int(done.size)
