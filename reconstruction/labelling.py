@@ -913,10 +913,10 @@ def label_samples(
             stats["samples_piece_seeds"] = ps["samples"]
         if options.surface_labels and options.cross_pieces and model is not None and grid is not None:
             # pieces inside a labelled surface that predicts their index (decision 0093)
-            sf = label_from_surface(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
+            sf = label_from_surface(q, fam, sid, piece, ts, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
                                     grid=grid, fit_radius_px=options.surface_radius * model.junction_step_cam_px,
                                     trim_px=options.cross_trim_sigma * sigma_px, min_samples=options.cross_min_samples,
-                                    anchor=options.fill_anchor, rounds=options.surface_rounds)
+                                    rounds=options.surface_rounds)
             stats["samples_surface_labels"] = sf["samples"]
         if options.far_end_check and model is not None and grid is not None:
             # a seeded trace that ran across a depth edge onto a collinear line of another surface: the

@@ -40,7 +40,6 @@ import math
 
 import numpy as np
 
-from reconstruction._continuation_kernels import piece_ends
 from reconstruction._jit import njit
 from reconstruction.continuation import project_nearest_line
 from reconstruction.rigmodel import RigModel
@@ -48,31 +47,52 @@ from reconstruction.rigmodel import RigModel
 
 
 @njit
-def _k_piece_centres(cand, first, last, sid, q):
-    """Per candidate piece: the mean of its samples (camera px) and its half extent (largest distance of a
-    sample from that mean)."""
-    n = cand.shape[0]
-    cen = np.empty((n, 2))
-    ext = np.zeros(n)
-    for r in range(n):
-        p = cand[r]
+def _k_open_pieces(sid, piece, index, q, n_p, min_samples):
+    """The trace pieces (piece (n,) non-decreasing ids, sid (n,) their sample ids in order): first and last
+    trace position of each (n_p,), and the pieces without a labelled sample (finite index) of at least
+    min_samples samples: their ids, the mean of their samples (camera px) and their half extent (the largest
+    distance of a sample from that mean)."""
+    n = sid.shape[0]
+    first = np.full(n_p, -1, np.intp)
+    last = np.full(n_p, -1, np.intp)
+    lab = np.zeros(n_p, np.bool_)
+    for k in range(n):
+        p = piece[k]
+        if first[p] < 0:
+            first[p] = k
+        last[p] = k
+        if math.isfinite(index[sid[k]]):
+            lab[p] = True
+    m = 0
+    for p in range(n_p):
+        if not lab[p] and last[p] - first[p] + 1 >= min_samples:
+            m += 1
+    cand = np.empty(m, np.intp)
+    cen = np.empty((m, 2))
+    ext = np.zeros(m)
+    r = 0
+    for p in range(n_p):
+        if lab[p] or last[p] - first[p] + 1 < min_samples:
+            continue
         sx = 0.0
         sy = 0.0
         for k in range(first[p], last[p] + 1):
             sx += q[sid[k], 0]
             sy += q[sid[k], 1]
-        m = last[p] - first[p] + 1
-        cx = sx / m
-        cy = sy / m
+        c = last[p] - first[p] + 1
+        cx = sx / c
+        cy = sy / c
         e = 0.0
         for k in range(first[p], last[p] + 1):
             d = math.hypot(q[sid[k], 0] - cx, q[sid[k], 1] - cy)
             if d > e:
                 e = d
+        cand[r] = p
         cen[r, 0] = cx
         cen[r, 1] = cy
         ext[r] = e
-    return cen, ext
+        r += 1
+    return first, last, cand, cen, ext
 
 
 @njit
@@ -260,7 +280,6 @@ def label_from_surface(
     sid: np.ndarray,
     piece: np.ndarray,
     ts: np.ndarray,
-    tangent: np.ndarray,
     index: np.ndarray,
     seed_jid: np.ndarray,
     *,
@@ -270,7 +289,6 @@ def label_from_surface(
     fit_radius_px: float,
     trim_px: float = 0.0,
     min_samples: int = 4,
-    anchor: int = 3,
     rounds: int = 3,
     min_neighbours: int = 8,
     min_spread: float = 0.15,
@@ -283,7 +301,7 @@ def label_from_surface(
 
     q (P, 2) camera px, fam (P,) 1/2 of all samples; the traces as `labelling.label_samples` builds them: sid
     (n,) sample ids by piece and position, piece (n,) non-decreasing piece ids, ts (n,) position along the piece
-    (px), tangent (n, 2) unit. index (P,) float (NaN: unlabelled) and seed_jid (P,) int are written in place
+    (px). index (P,) float (NaN: unlabelled) and seed_jid (P,) int are written in place
     (seed_jid: that of the labelled neighbour nearest the piece's centre). grid: the frame's bucket grid of the
     valid samples (`labelling._sample_grid`; any cell size, the first seven entries are read). fit_radius_px: the neighbourhood
     beyond the piece's half extent (camera px, about one junction step). max_offset: standard deviations
@@ -302,36 +320,36 @@ def label_from_surface(
     t = model.procam.t_proj_cam
     w_lab = np.full(len(q), np.nan)  # 1/z of the labelled samples, computed once per sample
     xy_lab = np.full((len(q), 2), np.nan)
-    _, _, end_pos, labelled, _, _ = piece_ends(q, sid, piece, tangent, index, seed_jid, n_p, int(anchor))
-    first, last = end_pos[:n_p], end_pos[n_p:]
+    first, last, cand_all, cen_all, ext_all = _k_open_pieces(sid, piece, index, q, n_p, int(min_samples))
+    if len(cand_all) == 0:
+        return stats
     count = last - first + 1
-    open_p = ~labelled & (count >= min_samples)
+    rad_all = ext_all + float(fit_radius_px)
+    open_c = np.ones(len(cand_all), bool)
     x0, y0, cell, gw, gh, start, items = grid[:7]
     dirty = np.ones(gw * gh, np.bool_)  # the cells where labels changed: all at first
     sums = _k_cell_sums(q, index, gw, gh, start, items)  # per cell, over its labelled samples
     for _ in range(rounds):
-        cand = np.flatnonzero(open_p)
-        if len(cand) == 0:
+        oc = np.flatnonzero(open_c)
+        if len(oc) == 0:
             break
-        stats["tried"] += len(cand)
+        stats["tried"] += len(oc)
         # 2. support on both sides (camera px only, before any depth is computed)
-        cen, ext = _k_piece_centres(cand, first, last, sid, q)
-        rad = ext + float(fit_radius_px)
-        cnt, spread, offset2 = _k_support(cen, rad, sums, dirty, x0, y0, cell, gw, gh)
-        sup = np.flatnonzero((cnt >= min_neighbours) & (spread >= min_spread * rad) & (offset2 <= max_offset * max_offset))
+        cnt, spread, offset2 = _k_support(cen_all[oc], rad_all[oc], sums, dirty, x0, y0, cell, gw, gh)
+        sup = oc[(cnt >= min_neighbours) & (spread >= min_spread * rad_all[oc]) & (offset2 <= max_offset * max_offset)]
         if len(sup) == 0:
             break
-        cand, cen, rad = cand[sup], cen[sup], rad[sup]
+        cand, cen, rad = cand_all[sup], cen_all[sup], rad_all[sup]
         # 1. the local surface, from the depths of the labelled samples around (each computed once)
         need = np.zeros(len(q), bool)
         _k_mark_needed(cen, rad, index, *grid[:7], need)
         todo = np.flatnonzero(need & ~np.isfinite(w_lab))
         if len(todo):
-            p, z, _, _ = model.sheet_check(q[todo], fam[todo], index[todo].astype(np.int64))
-            X = (p - t) @ R  # camera frame
-            ok = np.isfinite(z) & (X[:, 2] > 0)
-            w_lab[todo[ok]] = 1.0 / X[ok, 2]
-            xy_lab[todo[ok]] = X[ok, :2] / X[ok, 2:3]
+            xy_t = model.cam_normalised(q[todo])
+            z = (model.intersect_light_sheets(xy_t, fam[todo], index[todo].astype(np.int64)) - t) @ R[:, 2]  # camera-frame depth
+            ok = z > 0  # (NaN where the ray misses the sheet)
+            w_lab[todo[ok]] = 1.0 / z[ok]
+            xy_lab[todo[ok]] = xy_t[ok]
         coef, rms, near = _k_fit_planes(cen, rad, q, xy_lab, w_lab, index, *grid[:7])
         fr = np.flatnonzero(np.isfinite(coef[:, 0]))
         stats["fitted"] += len(fr)
@@ -389,8 +407,9 @@ def label_from_surface(
         qw = q[s_all[w]]
         np.add.at(sums, gy * gw + gx, np.column_stack([np.ones(len(w)), qw[:, 0], qw[:, 1], qw[:, 0] ** 2, qw[:, 0] * qw[:, 1],
                                                        qw[:, 1] ** 2]))
-        done = np.unique(owner[w])
-        open_p[pc[done]] = False
+        ow = owner[w]  # non-decreasing
+        done = ow[np.concatenate(([True], ow[1:] != ow[:-1]))]
+        open_c[sup[fr[done]]] = False
         stats["pieces"] += int(done.size)
         stats["samples"] += int(len(w))
     return stats
