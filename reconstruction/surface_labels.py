@@ -8,30 +8,36 @@ Evidence from one side only is not enough (across a depth edge the neighbours ar
 periodic grid lets a wrong k fit by chance; decisions 0049, 0089). Confirming the prediction at the piece's
 crossings (the crossing on the epipolar line of the predicted junction, on both light sheets) was measured
 and does not work on these rigs: the crossings of short unlabelled pieces are located to 1–5 projector px on
-the sensitive sheet, and a check loose enough for them let a piece 8 lines off through (decision 0093). So the
-surface must hold on *both sides* of the piece: the piece is labelled only where it lies inside the labelled
-surface around it, which one plane fits far better than one sheet step:
+the sensitive sheet, and the partner-sheet check alone let a piece 8 lines off through (decision 0093). So the
+surface must hold on *both sides* of the piece: a piece is labelled only where it lies inside the labelled
+surface around it and one plane fits that surface far better than one sheet step:
 
-1. **Local surface.** The labelled samples (either family) within `fit_radius_px` + the piece's half extent of
-   the piece's centre, triangulated on their own sheets (camera-frame depth z), are fitted by a plane in the
-   camera frame: 1/z = a·x + b·y + c in normalised camera coordinates (exact for a plane, least squares).
-2. **Support on both sides.** At least `min_neighbours` neighbours, spread in two directions (the smaller
-   principal spread at least `min_spread` of the radius: one line's samples leave the plane open), and the
+1. **Neighbourhood.** The labelled samples (either family) in the cells of the frame's bucket grid
+   (`labelling._sample_grid`) that the square of half side `fit_radius_px` + the piece's half extent around
+   the piece's centre touches.
+2. **Support on both sides.** At least `min_neighbours` of them, spread in two directions (the smaller
+   principal spread at least `min_spread` of that half side: one line's samples leave the plane open), and the
    piece's centre within `max_offset` standard deviations (Mahalanobis, in the neighbours' own covariance)
-   of their centroid: neighbours around the piece, not on one side of it (at the straight border of a
-   labelled region the offset is about 1.6).
-3. **Fit against the sheet step.** The RMS relative depth residual of the fit (of (1/z − fit)·z) at most
-   `max_fit_lines` of the relative depth step between neighbouring light sheets on the piece's middle ray
-   (|z(k+1) − z(k)| / z(k)): neighbours from two surfaces, or a fold, do not fit one plane.
+   of their centroid: neighbours around the piece, not on one side of it (for a uniformly labelled half disc
+   the offset of the disc's centre is 1.6). Camera px only, from per-cell sums: no depth is computed for
+   pieces that fail here.
+3. **Local surface.** The neighbours, triangulated on their own sheets (camera-frame depth z), are fitted by a
+   plane in the camera frame: 1/z = a·x + b·y + c in normalised camera coordinates (exact for a plane, least
+   squares). Its RMS relative depth residual (of (1/z − fit)·z) must be at most `max_fit_lines` of the
+   relative depth step between neighbouring light sheets on the piece's middle ray (|z(k+1) − z(k)| / z(k)):
+   neighbours from two surfaces, or a fold, do not fit one plane.
 4. **Prediction.** Each sample's ray meets the plane; its projector point lies within `max_pred_lines` line
-   spacings of one line k of the piece's family, the same k for every sample.
+   spacings (the family's smallest) of one line k of the piece's family, the same k for every sample; and the
+   predicted position, in sheet steps from sheet k, drifts along the piece by at most `max_pred_lines` per
+   junction step of the piece's length (a line keeps its index along itself; a piece of the other family's
+   line, given this family by mistake, drifts by a whole line per junction step).
 5. **Working volume.** Every sample of the piece, triangulated on sheet k, lies inside the depth range.
 
 Pieces of at least `min_samples` samples are tried. The samples within `trim_px` of a piece's ends are left
 out (the crossing's light pulls the ridge there; the gap filling puts them back where the line is labelled on
-both sides) and take the junction of the nearest labelled neighbour. Repeated for `rounds` rounds: newly
-labelled pieces are neighbours in the next. The depths of labelled samples are computed once per sample and
-only near candidate pieces.
+both sides) and take the junction of the labelled neighbour nearest the piece's centre. Repeated for `rounds`
+rounds: newly labelled pieces are neighbours in the next (only pieces whose cells changed are looked at
+again). The depths of the labelled samples are computed once per sample and only for pieces with support.
 """
 
 from __future__ import annotations
@@ -300,13 +306,13 @@ def label_from_surface(
     (module doc).
 
     q (P, 2) camera px, fam (P,) 1/2 of all samples; the traces as `labelling.label_samples` builds them: sid
-    (n,) sample ids by piece and position, piece (n,) non-decreasing piece ids, ts (n,) position along the piece
-    (px). index (P,) float (NaN: unlabelled) and seed_jid (P,) int are written in place
-    (seed_jid: that of the labelled neighbour nearest the piece's centre). grid: the frame's bucket grid of the
-    valid samples (`labelling._sample_grid`; any cell size, the first seven entries are read). fit_radius_px: the neighbourhood
-    beyond the piece's half extent (camera px, about one junction step). max_offset: standard deviations
-    (the square root of the Mahalanobis form). Returns counts: pieces and samples labelled, pieces tried
-    (unlabelled, long enough), pieces with a fit and with a prediction."""
+    (n,) sample ids by piece and position, piece (n,) non-decreasing piece ids, ts (n,) position along the
+    piece (px). index (P,) float (NaN: unlabelled) and seed_jid (P,) int are written in place (seed_jid: that
+    of the labelled neighbour nearest the piece's centre). grid: the frame's bucket grid of the valid samples
+    (`labelling._sample_grid`, any cell size; its first seven entries are read). fit_radius_px: the
+    neighbourhood's reach beyond the piece's half extent (camera px, about one junction step). max_offset:
+    standard deviations (the square root of the Mahalanobis form). Returns counts: pieces and samples
+    labelled, pieces tried (summed over the rounds), pieces with a plane fit and with a prediction."""
     stats = {"pieces": 0, "samples": 0, "tried": 0, "fitted": 0, "predicted": 0}
     n = len(piece)
     if n == 0:
