@@ -113,11 +113,20 @@ def _k_cell_box(cx, cy, R, x0, y0, cell, gw, gh):
 
 
 @njit
-def _k_cell_sums(q, index, gw, gh, start, items):
+def _k_cell_sums(q, index, cen, rad, x0, y0, cell, gw, gh, start, items):
     """Per grid cell, over its labelled samples (finite index): count, Σx, Σy, Σx², Σxy, Σy² (camera px),
-    (gw·gh, 6)."""
+    (gw·gh, 6); only the cells of the neighbourhoods of the centres cen (n, 2) (half sides rad, `_k_cell_box`)
+    are summed, the others stay zero."""
     out = np.zeros((gw * gh, 6))
+    used = np.zeros(gw * gh, np.bool_)
+    for r in range(cen.shape[0]):
+        gx0, gx1, gy0, gy1 = _k_cell_box(cen[r, 0], cen[r, 1], rad[r], x0, y0, cell, gw, gh)
+        for yy in range(gy0, gy1 + 1):
+            for xx in range(gx0, gx1 + 1):
+                used[yy * gw + xx] = True
     for b in range(gw * gh):
+        if not used[b]:
+            continue
         for t in range(start[b], start[b + 1]):
             s = items[t]
             if math.isfinite(index[s]):
@@ -182,9 +191,12 @@ def _k_support(cen, rad, sums, dirty, x0, y0, cell, gw, gh):
 
 
 @njit
-def _k_mark_needed(cen, rad, index, x0, y0, cell, gw, gh, start, items, need):
-    """Marks need[s] for the labelled samples s (finite index[s]) in the neighbourhood of any centre cen[r]
-    (the cells `_k_support` sums)."""
+def _k_needed(cen, rad, index, w, seen, x0, y0, cell, gw, gh, start, items):
+    """The labelled samples (finite index[s]) in the neighbourhood of any centre cen[r] (the cells
+    `_k_support` sums) whose depth is not known yet (w[s] NaN), each once: their ids, in the order found.
+    seen (P,) bool is scratch, marked for the returned ids (and left marked)."""
+    out = np.empty(items.shape[0], np.intp)
+    m = 0
     for r in range(cen.shape[0]):
         gx0, gx1, gy0, gy1 = _k_cell_box(cen[r, 0], cen[r, 1], rad[r], x0, y0, cell, gw, gh)
         for yy in range(gy0, gy1 + 1):
@@ -192,8 +204,12 @@ def _k_mark_needed(cen, rad, index, x0, y0, cell, gw, gh, start, items, need):
                 b = yy * gw + xx
                 for t in range(start[b], start[b + 1]):
                     s = items[t]
-                    if math.isfinite(index[s]):
-                        need[s] = True
+                    if seen[s] or not math.isfinite(index[s]) or math.isfinite(w[s]):
+                        continue
+                    seen[s] = True
+                    out[m] = s
+                    m += 1
+    return out[:m]
 
 
 @njit
@@ -326,6 +342,7 @@ def label_from_surface(
     t = model.procam.t_proj_cam
     w_lab = np.full(len(q), np.nan)  # 1/z of the labelled samples, computed once per sample
     xy_lab = np.full((len(q), 2), np.nan)
+    seen = np.zeros(len(q), np.bool_)  # samples whose depth was computed (or missed the sheet)
     first, last, cand_all, cen_all, ext_all = _k_open_pieces(sid, piece, index, q, n_p, int(min_samples))
     if len(cand_all) == 0:
         return stats
@@ -334,7 +351,7 @@ def label_from_surface(
     open_c = np.ones(len(cand_all), bool)
     x0, y0, cell, gw, gh, start, items = grid[:7]
     dirty = np.ones(gw * gh, np.bool_)  # the cells where labels changed: all at first
-    sums = _k_cell_sums(q, index, gw, gh, start, items)  # per cell, over its labelled samples
+    sums = _k_cell_sums(q, index, cen_all, rad_all, x0, y0, cell, gw, gh, start, items)  # per cell, its labelled samples
     for _ in range(rounds):
         oc = np.flatnonzero(open_c)
         if len(oc) == 0:
@@ -347,9 +364,7 @@ def label_from_surface(
             break
         cand, cen, rad = cand_all[sup], cen_all[sup], rad_all[sup]
         # 1. the local surface, from the depths of the labelled samples around (each computed once)
-        need = np.zeros(len(q), bool)
-        _k_mark_needed(cen, rad, index, *grid[:7], need)
-        todo = np.flatnonzero(need & ~np.isfinite(w_lab))
+        todo = _k_needed(cen, rad, index, w_lab, seen, *grid[:7])
         if len(todo):
             xy_t = model.cam_normalised(q[todo])
             z = (model.intersect_light_sheets(xy_t, fam[todo], index[todo].astype(np.int64)) - t) @ R[:, 2]  # camera-frame depth

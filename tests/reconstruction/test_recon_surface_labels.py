@@ -85,9 +85,9 @@ def test_support_against_direct_sums():
     q, grid = _synthetic_grid(rng, n=600)
     x0, y0, cell, gw, gh, start, items = grid[:7]
     index = np.where(q[:, 0] < 60.0, 2.0, np.nan)  # labelled left of x = 60
-    sums = _k_cell_sums(q, index, gw, gh, start, items)
     cen = np.array([[30.0, 50.0], [62.0, 50.0]])
     rad = np.array([15.0, 15.0])
+    sums = _k_cell_sums(q, index, cen, rad, x0, y0, cell, gw, gh, start, items)
     cnt, spread, offset2 = _k_support(cen, rad, sums, np.ones(gw * gh, bool), x0, y0, cell, gw, gh)
     for r in range(len(cen)):
         gx = np.floor((q[:, 0] - x0) / cell).astype(int)
