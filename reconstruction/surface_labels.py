@@ -296,6 +296,93 @@ def _k_fit_planes(cen, rad, q, xy, w, index, x0, y0, cell, gw, gh, start, items)
     return coef, rms, near
 
 
+@njit
+def _k_predict(coef, lens, xy, R, t):
+    """The predicted points: sample r of fitted piece i (lens (m,) samples each, in order) meets the plane of
+    coef[i] (`_k_fit_planes`) along its ray (normalised camera coordinates xy[r]): its camera-frame depth zp
+    (NaN behind the camera) and projector-frame point p (N, 3) (the origin where none)."""
+    N = xy.shape[0]
+    zp = np.full(N, np.nan)
+    p = np.zeros((N, 3))
+    r = 0
+    for i in range(lens.shape[0]):
+        a, b, c, xr, yr = coef[i, 0], coef[i, 1], coef[i, 2], coef[i, 3], coef[i, 4]
+        for _ in range(lens[i]):
+            x = xy[r, 0]
+            y = xy[r, 1]
+            wv = c + a * (x - xr) + b * (y - yr)
+            if wv > 0.0:
+                z = 1.0 / wv
+                zp[r] = z
+                for d in range(3):
+                    p[r, d] = R[d, 0] * x * z + R[d, 1] * y * z + R[d, 2] * z + t[d]
+            r += 1
+    return zp, p
+
+
+@njit
+def _k_piece_index(lens, kk, dist, fam_s, spacing, max_pred_lines):
+    """Per fitted piece (lens (m,) samples each, in order): the line k its samples' predicted points are
+    nearest to (kk, dist (N,) projector px from `project_nearest_line`), and whether every sample names the
+    same k within max_pred_lines line spacings (spacing (2,) projector px per family; fam_s (N,) 1/2); the
+    middle sample's position."""
+    m = lens.shape[0]
+    k = np.zeros(m, np.int64)
+    ok = np.zeros(m, np.bool_)
+    mid = np.zeros(m, np.intp)
+    r = 0
+    for i in range(m):
+        k[i] = kk[r]
+        good = True
+        for j in range(r, r + lens[i]):
+            if kk[j] != k[i] or not dist[j] / spacing[fam_s[j] - 1] <= max_pred_lines:
+                good = False
+        ok[i] = good
+        mid[i] = r + lens[i] // 2
+        r += lens[i]
+    return k, ok, mid
+
+
+@njit
+def _k_accept(lens, ok, zp, zs, z1, mid, rms, length, step_px, max_fit_lines, max_pred_lines, z_lo, z_hi, ts_s, trim_px):
+    """Per fitted piece whose prediction named one line (ok): the fit against the depth step between sheets k
+    and k + 1 on the middle ray (rms ≤ max_fit_lines·|z1 − z0|/z0, z0 = zs[mid]), the prediction's drift along
+    the piece in sheet steps (range of (zp − zs)/step ≤ max_pred_lines per junction step step_px of the
+    piece's length), every sample's depth zs on sheet k inside [z_lo, z_hi]. Returns the accepted pieces
+    (bool (m,)) and the samples to write (bool (N,): of accepted pieces, at least trim_px from the piece's
+    ends along ts_s)."""
+    m = lens.shape[0]
+    acc = np.zeros(m, np.bool_)
+    write = np.zeros(zs.shape[0], np.bool_)
+    r = 0
+    for i in range(m):
+        n = lens[i]
+        if ok[i]:
+            z0 = zs[mid[i]]
+            step = abs(z1[i] - z0)
+            good = rms[i] <= max_fit_lines * step / z0
+            lo = np.inf
+            hi = -np.inf
+            for j in range(r, r + n):
+                if not (zs[j] >= z_lo and zs[j] <= z_hi):
+                    good = False
+                if math.isfinite(zp[j]):
+                    o = (zp[j] - zs[j]) / max(step, 1e-9)
+                    lo = min(lo, o)
+                    hi = max(hi, o)
+            if hi >= lo and (hi - lo) * (step_px / length[i]) > max_pred_lines:
+                good = False
+            if good:
+                acc[i] = True
+                t0 = ts_s[r]
+                t1 = ts_s[r + n - 1]
+                for j in range(r, r + n):
+                    if min(ts_s[j] - t0, t1 - ts_s[j]) >= trim_px:
+                        write[j] = True
+        r += n
+    return acc, write
+
+
 def label_from_surface(
     q: np.ndarray,
     fam: np.ndarray,
@@ -379,46 +466,24 @@ def label_from_surface(
         # 4. the prediction at every sample of those pieces
         pc = cand[fr]
         lens = count[pc]
-        starts = np.cumsum(lens) - lens
-        owner = np.repeat(np.arange(len(pc)), lens)
-        pos = np.repeat(first[pc], lens) + (np.arange(lens.sum()) - np.repeat(starts, lens))
+        pos = np.repeat(first[pc] - np.cumsum(lens) + lens, lens) + np.arange(lens.sum())
         s_all = sid[pos]
-        xy = model.cam_normalised(q[s_all])
-        cf = coef[fr][owner]
-        wp = cf[:, 2] + cf[:, 0] * (xy[:, 0] - cf[:, 3]) + cf[:, 1] * (xy[:, 1] - cf[:, 4])
-        front = wp > 0
-        zp = 1.0 / np.where(front, wp, 1.0)
-        p_pred = np.column_stack([xy * zp[:, None], zp]) @ R.T + t
+        zp, p_pred = _k_predict(coef[fr], lens, model.cam_normalised(q[s_all]), R, t)
         f_s = fam[s_all].astype(np.int64)
         kk, dist = project_nearest_line(model, f_s, p_pred)
-        dist = np.where(front, dist / spacing[f_s - 1], np.inf)
-        k = np.minimum.reduceat(kk, starts)
-        ok = (k == np.maximum.reduceat(kk, starts)) & (np.maximum.reduceat(dist, starts) <= max_pred_lines)
-        # the samples on sheet k, and each piece's middle sample on sheet k + 1: one call
-        mid = starts + lens // 2
+        k, ok, mid = _k_piece_index(lens, kk, dist, f_s, spacing, float(max_pred_lines))
+        # 3. and 5. the samples on sheet k and each piece's middle sample on sheet k + 1 (one call): the fit
+        # against the depth step, the drift along the piece, the working volume
         _, zz, _, _ = model.sheet_check(np.concatenate((q[s_all], q[s_all[mid]])), np.concatenate((f_s, f_s[mid])),
-                                        np.concatenate((k[owner], k + 1)))
-        zs, z1 = zz[: len(s_all)], zz[len(s_all):]
-        z0 = zs[mid]
-        step = np.abs(z1 - z0)  # the depth between neighbouring sheets on the middle ray (mm)
-        # 3. the fit against that step
-        ok &= rms[fr] <= max_fit_lines * step / z0
-        # a line of the piece's family keeps its index along the piece: the predicted position, in sheet
-        # steps from sheet k, may drift by at most max_pred_lines per junction step of the piece's length (a
-        # piece of the other family's line, given this family by mistake, drifts by a whole line per step)
-        off = np.where(front, (zp - zs) / np.maximum(step, 1e-9)[owner], 0.0)
-        drift = np.maximum.reduceat(off, starts) - np.minimum.reduceat(off, starts)
-        length = np.maximum(ts[last[pc]] - ts[first[pc]], 1.0)
-        ok &= drift * (model.junction_step_cam_px / length) <= max_pred_lines
-        # 5. the working volume on sheet k, every sample of the piece
-        outside = ~((zs >= z_lo) & (zs <= z_hi))
-        ok &= np.bincount(owner, weights=outside, minlength=len(pc)) == 0
-        stats["predicted"] += int(ok.sum())
-        # write, leaving out the samples within trim_px of the piece's ends
-        keep = ok[owner] & (np.minimum(ts[pos] - ts[first[pc][owner]], ts[last[pc][owner]] - ts[pos]) >= trim_px)
-        w = np.flatnonzero(keep)
+                                        np.concatenate((np.repeat(k, lens), k + 1)))
+        acc, write = _k_accept(lens, ok, zp, zz[: len(s_all)], zz[len(s_all):], mid, rms[fr],
+                               np.maximum(ts[last[pc]] - ts[first[pc]], 1.0), float(model.junction_step_cam_px),
+                               float(max_fit_lines), float(max_pred_lines), z_lo, z_hi, ts[pos], float(trim_px))
+        stats["predicted"] += int(acc.sum())
+        w = np.flatnonzero(write)
         if len(w) == 0:
             break
+        owner = np.repeat(np.arange(len(pc)), lens)
         index[s_all[w]] = k[owner[w]]
         seed_jid[s_all[w]] = seed_jid[near[fr][owner[w]]]
         gx = np.clip(((q[s_all[w], 0] - x0) // cell).astype(np.intp), 0, gw - 1)
