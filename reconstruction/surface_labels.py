@@ -383,6 +383,42 @@ def _k_accept(lens, ok, zp, zs, z1, mid, rms, length, step_px, max_fit_lines, ma
     return acc, write
 
 
+@njit
+def _k_write(lens, write, k, near, s_all, q, index, seed_jid, sums, dirty, x0, y0, cell, gw, gh):
+    """Writes the accepted samples (write (N,), in the order of s_all, lens (m,) per piece): index k of their
+    piece, seed_jid of its nearest labelled neighbour near[i]; marks their grid cells in dirty (cleared first)
+    and adds them to the per-cell sums (`_k_cell_sums`). Returns the pieces written (bool (m,)) and the number
+    of samples."""
+    dirty[:] = False
+    m = lens.shape[0]
+    done = np.zeros(m, np.bool_)
+    nw = 0
+    r = 0
+    for i in range(m):
+        for j in range(r, r + lens[i]):
+            if not write[j]:
+                continue
+            s = s_all[j]
+            index[s] = k[i]
+            seed_jid[s] = seed_jid[near[i]]
+            x = q[s, 0]
+            y = q[s, 1]
+            gx = min(max(int(math.floor((x - x0) / cell)), 0), gw - 1)
+            gy = min(max(int(math.floor((y - y0) / cell)), 0), gh - 1)
+            b = gy * gw + gx
+            dirty[b] = True
+            sums[b, 0] += 1.0
+            sums[b, 1] += x
+            sums[b, 2] += y
+            sums[b, 3] += x * x
+            sums[b, 4] += x * y
+            sums[b, 5] += y * y
+            done[i] = True
+            nw += 1
+        r += lens[i]
+    return done, nw
+
+
 def label_from_surface(
     q: np.ndarray,
     fam: np.ndarray,
@@ -423,8 +459,8 @@ def label_from_surface(
     n_p = int(piece[-1]) + 1
     z_lo, z_hi = float(depth_range_mm[0]), float(depth_range_mm[1])
     pat = model.pattern
-    spacing = np.array([np.min(np.diff(np.asarray(pat.offsets_px(f), np.float64))) / np.hypot(1.0, n_f)
-                        for f, n_f in ((1, pat.n1), (2, pat.n2))])
+    # each family's smallest line spacing, perpendicular to its lines (projector px)
+    spacing = np.min(np.diff(model.line_offsets_px, axis=1), axis=1) / np.hypot(1.0, np.array([pat.n1, pat.n2]))
     R = model.procam.R_proj_cam
     t = model.procam.t_proj_cam
     w_lab = np.full(len(q), np.nan)  # 1/z of the labelled samples, computed once per sample
@@ -480,22 +516,10 @@ def label_from_surface(
                                np.maximum(ts[last[pc]] - ts[first[pc]], 1.0), float(model.junction_step_cam_px),
                                float(max_fit_lines), float(max_pred_lines), z_lo, z_hi, ts[pos], float(trim_px))
         stats["predicted"] += int(acc.sum())
-        w = np.flatnonzero(write)
-        if len(w) == 0:
+        done, nw = _k_write(lens, write, k, near[fr], s_all, q, index, seed_jid, sums, dirty, x0, y0, cell, gw, gh)
+        if nw == 0:
             break
-        owner = np.repeat(np.arange(len(pc)), lens)
-        index[s_all[w]] = k[owner[w]]
-        seed_jid[s_all[w]] = seed_jid[near[fr][owner[w]]]
-        gx = np.clip(((q[s_all[w], 0] - x0) // cell).astype(np.intp), 0, gw - 1)
-        gy = np.clip(((q[s_all[w], 1] - y0) // cell).astype(np.intp), 0, gh - 1)
-        dirty[:] = False
-        dirty[gy * gw + gx] = True
-        qw = q[s_all[w]]
-        np.add.at(sums, gy * gw + gx, np.column_stack([np.ones(len(w)), qw[:, 0], qw[:, 1], qw[:, 0] ** 2, qw[:, 0] * qw[:, 1],
-                                                       qw[:, 1] ** 2]))
-        ow = owner[w]  # non-decreasing
-        done = ow[np.concatenate(([True], ow[1:] != ow[:-1]))]
         open_c[sup[fr[done]]] = False
-        stats["pieces"] += int(done.size)
-        stats["samples"] += int(len(w))
+        stats["pieces"] += int(done.sum())
+        stats["samples"] += int(nw)
     return stats
