@@ -31,6 +31,7 @@ from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import epipolar_lines, paper_epipolar_mb
 from reconstruction.piece_seeds import seed_one_sided
+from reconstruction.surface_labels import label_from_surface
 from reconstruction.rigmodel import UNLABELLED, RigModel
 from reconstruction.trace_ends import cut_facing_ends, cut_far_ends
 
@@ -511,6 +512,10 @@ class TraceOptions:
     piece_seeds: label a piece that a crossing with a labelled line names at one end when the crossing at
         its other end, on the piece's light sheet, lands on the next line of the other family
         (`reconstruction.piece_seeds`, decision 0089).
+    surface_labels: label a piece whose index the labelled surface around it predicts: a plane fit of the
+        labelled samples' depths within surface_radius junction steps beyond the piece's half extent, with
+        neighbours on all sides of the piece and a residual far below one sheet step; surface_rounds rounds
+        (`reconstruction.surface_labels`, decision 0093).
     """
 
     mix_sigma: float = 2.0
@@ -540,6 +545,9 @@ class TraceOptions:
     far_end_check: bool = True
     from_segments: bool = True
     piece_seeds: bool = True
+    surface_labels: bool = True
+    surface_rounds: int = 3
+    surface_radius: float = 1.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -907,6 +915,13 @@ def label_samples(
                                 trim_px=options.cross_trim_sigma * sigma_px, tol_px=options.cross_residual_px,
                                 min_samples=options.cross_min_samples, anchor=options.fill_anchor)
             stats["samples_piece_seeds"] = ps["samples"]
+        if options.surface_labels and options.cross_pieces and model is not None and grid is not None:
+            # pieces inside a labelled surface that predicts their index (decision 0093)
+            sf = label_from_surface(q, fam, sid, piece, ts, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
+                                    grid=grid, fit_radius_px=options.surface_radius * model.junction_step_cam_px,
+                                    trim_px=options.cross_trim_sigma * sigma_px, min_samples=options.cross_min_samples,
+                                    rounds=options.surface_rounds)
+            stats["samples_surface_labels"] = sf["samples"]
         if options.far_end_check and model is not None and grid is not None:
             # a seeded trace that ran across a depth edge onto a collinear line of another surface: the
             # crossing at its far end names another line (decision 0084, `reconstruction.trace_ends`)
