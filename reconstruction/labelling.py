@@ -30,6 +30,7 @@ from reconstruction import _label_kernels as _k
 from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import epipolar_lines, paper_epipolar_mb
+from reconstruction.piece_junctions import label_piece_junctions
 from reconstruction.piece_seeds import seed_one_sided
 from reconstruction.rigmodel import UNLABELLED, RigModel
 from reconstruction.trace_ends import cut_facing_ends, cut_far_ends
@@ -511,6 +512,8 @@ class TraceOptions:
     piece_seeds: label a piece that a crossing with a labelled line names at one end when the crossing at
         its other end, on the piece's light sheet, lands on the next line of the other family
         (`reconstruction.piece_seeds`, decision 0089).
+    piece_junctions: build junctions at the crossings of pieces where extraction found none and label them as
+        found ones (`reconstruction.piece_junctions`, decision 0092).
     """
 
     mix_sigma: float = 2.0
@@ -540,6 +543,7 @@ class TraceOptions:
     far_end_check: bool = True
     from_segments: bool = True
     piece_seeds: bool = True
+    piece_junctions: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -903,6 +907,16 @@ def label_samples(
                                 trim_px=options.cross_trim_sigma * sigma_px, tol_px=options.cross_residual_px,
                                 min_samples=options.cross_min_samples, anchor=options.fill_anchor)
             stats["samples_piece_seeds"] = ps["samples"]
+        if options.piece_junctions and options.cross_pieces and model is not None and grid is not None:
+            # junctions at the crossings of pieces where extraction found none (decision 0092)
+            pj = label_piece_junctions(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
+                                       radius_px=options.cross_radius * model.junction_step_cam_px, grid=grid,
+                                       q_junction=obs.q_junction, junction_labels=lab, trim_px=options.cross_trim_sigma * sigma_px,
+                                       anchor=options.fill_anchor,
+                                       reach_px=0.5 * (cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
+                                                                              min_angle_deg=options.continue_gap_deg or 45.0)),
+                                       lateral_px=options.seed_lateral_px * cell, q_out=q_out)
+            stats["samples_piece_junctions"] = pj["samples"]
         if options.far_end_check and model is not None and grid is not None:
             # a seeded trace that ran across a depth edge onto a collinear line of another surface: the
             # crossing at its far end names another line (decision 0084, `reconstruction.trace_ends`)

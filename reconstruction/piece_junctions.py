@@ -1,0 +1,289 @@
+"""Junctions built from the crossings of trace pieces where extraction found none (decision 0092).
+
+Where the lines are compressed and cross at acute image angles (a surface the projector light grazes, the
+rim of a cylinder) extraction finds the line samples of both families but no junction: its crossing
+candidates need a blob with λ2/λ1 ≥ 0.25 and a ring of both families' samples (decisions 0068, 0083). Without
+a labelled junction nothing seeds the pieces there, and the crossing rounds of `label_samples` (which need a
+labelled line on the other side) cannot advance into a band where both families are unlabelled.
+
+The crossings are still there: the mixing zone cuts every trace piece at every crossing, so each piece's end
+faces a crossing's gap and its end line meets the other family's piece through that gap. Here
+
+1. **Crossings.** Each end of every piece (labelled or not) of at least `min_samples` samples is intersected
+   with the nearest sample of the other family within `radius_px` (the crossing search of `label_samples`'
+   step 6, `_label_kernels.crossing_hits_traces`, any sample); the point is refined as the intersection of
+   the two pieces' end lines beyond the crossing's pull (`piece_seeds._k_refine`: from the first sample
+   `trim_px` inside each end, along the chord `anchor` samples further in).
+2. **Virtual junctions.** The estimates of one crossing (up to four: the two pieces of each line that end in
+   its gap) closer than `merge_px` to one another are one node (single linkage); its position is their mean.
+3. **Edges.** A piece with a node at each end is an edge: along a line of family f the other family's index
+   changes by ±1 (the piece spans one cell), with the sign from the predicted camera→projector Jacobian as
+   extraction's edges (`_extract_kernels.edge_steps`, which also drops an edge more than 1.6× the shortest
+   edge of its family at either node: it skipped a crossing nobody saw).
+4. **Labels.** The node graph goes to the default labeller (`labelling.label_epipolar`): one integer offset per
+   connected component, chosen by the epipolar residual of all its nodes, the pattern's extent, the depth
+   range, the ambiguity margin and the outlier splitting, exactly as for found junctions.
+5. **Anchors.** A node where a labelled piece of family f ends carries that piece's index for f; a node within
+   `merge_px` of a labelled found junction carries its (i, j). A component any of whose labelled nodes
+   disagrees with an anchor is left out entirely (one wrong edge or a node joining two surfaces).
+6. **Pieces.** An unlabelled piece whose two end nodes are labelled and give it the same index (the index of
+   its family) takes that index; its samples within `trim_px` of its ends are left to the gap filling. Evidence
+   from two directions: the component's offset (many crossings, both families) and both ends of the piece.
+
+All per-end work is vectorised (`piece_ends`, `crossing_hits_traces`, `_k_refine`); the nodes are a union–find
+over the pairs of a k-d tree query.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from reconstruction import _extract_kernels as _ek
+from reconstruction._continuation_kernels import piece_ends
+from reconstruction._label_kernels import crossing_hits_traces
+from reconstruction.piece_seeds import _SIN_MIN_CROSSING, _k_refine
+from reconstruction.rigmodel import UNLABELLED, RigModel
+
+
+def _union_find_pairs(n: int, pairs: np.ndarray) -> np.ndarray:
+    """Component ids (0..C−1, numbered by their lowest member) of n items joined by pairs (K, 2)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if len(pairs) == 0:
+        return np.arange(n)
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, comp = connected_components(g, directed=False)
+    # renumber by lowest member
+    first = np.full(comp.max() + 1, n)
+    np.minimum.at(first, comp, np.arange(n))
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return rank[comp]
+
+
+def label_piece_junctions(
+    q: np.ndarray,
+    fam: np.ndarray,
+    sid: np.ndarray,
+    piece: np.ndarray,
+    ts: np.ndarray,
+    tangent: np.ndarray,
+    index: np.ndarray,
+    seed_jid: np.ndarray,
+    *,
+    model: RigModel,
+    depth_range_mm: tuple[float, float],
+    radius_px: float,
+    grid: tuple,
+    q_junction: np.ndarray,
+    junction_labels: np.ndarray,
+    trim_px: float = 0.0,
+    merge_px: float | None = None,
+    min_samples: int = 2,
+    anchor: int = 3,
+    reach_px: float = 0.0,
+    lateral_px: float = 1.0,
+    one_sided: bool = False,
+    q_out: np.ndarray | None = None,
+    label_options=None,
+    _debug: dict | None = None,
+) -> dict:
+    """Label unlabelled pieces from junctions built at the crossings of pieces (module doc).
+
+    q (P, 2) camera px, fam (P,) 1/2 of all samples; the traces as `labelling.label_samples` builds them: sid
+    (n,) sample ids by piece and position, piece (n,) non-decreasing piece ids, ts (n,) position along the piece
+    (px), tangent (n, 2) unit. index (P,) float (NaN: unlabelled) and seed_jid (P,) int are written in place
+    (seed_jid −1: no found junction). radius_px: how far from a piece's end the crossing is searched; grid: the
+    frame's bucket grid of the samples (`labelling._sample_grid`, cells ≥ radius_px). q_junction (M, 2),
+    junction_labels (M, 2): the found junctions and their labels (anchors). merge_px: crossing estimates this
+    close are one node (default 0.25 junction steps). label_options: `labelling.LabelOptions` (the depth range
+    is set from depth_range_mm). Returns counts: nodes, edges, nodes labelled, components rejected by an
+    anchor, pieces and samples labelled."""
+    from reconstruction.labelling import LabelOptions, label_epipolar
+
+    stats = {"nodes": 0, "edges": 0, "nodes_labelled": 0, "components_anchor_conflict": 0, "pieces": 0, "samples": 0}
+    n = len(piece)
+    if n == 0:
+        return stats
+    n_p = int(piece[-1]) + 1
+    if merge_px is None:
+        merge_px = 0.25 * model.junction_step_cam_px
+    e, u, end_pos, labelled, val, _ = piece_ends(q, sid, piece, tangent, index, seed_jid, n_p, int(anchor))
+    first, last = end_pos[:n_p], end_pos[n_p:]
+    count = last - first + 1
+    cand = np.flatnonzero(count >= min_samples)
+    nc = len(cand)
+    if nc == 0:
+        return stats
+    rows = np.concatenate((cand, cand + n_p))
+    E = np.ascontiguousarray(e[rows])
+    U = np.ascontiguousarray(u[rows])
+    fe = fam[sid[end_pos[rows]]].astype(np.int64)
+    # 1. each end's crossing with the nearest sample of the other family, refined beyond the crossing's pull
+    o, c = crossing_hits_traces(E, U, np.ones(2 * nc), fe, q, sid, tangent, fam, index, False, float(radius_px),
+                                _SIN_MIN_CROSSING, *grid)
+    h = np.flatnonzero(o >= 0)
+    if len(h) < 3:
+        return stats
+    _k_refine(np.ascontiguousarray(end_pos[rows[h]], np.int64), np.ascontiguousarray(o[h], np.int64), h.astype(np.int64),
+              c, first, last, piece, ts, q, sid, float(trim_px), int(anchor))
+    # 2. nodes: estimates closer than merge_px, single linkage
+    ch = c[h]
+    pairs = cKDTree(ch).query_pairs(float(merge_px), output_type="ndarray")
+    node_of_hit = _union_find_pairs(len(h), pairs)
+    n_nodes = int(node_of_hit.max()) + 1
+    cnt = np.bincount(node_of_hit, minlength=n_nodes).astype(np.float64)
+    xy = np.stack([np.bincount(node_of_hit, ch[:, 0], n_nodes), np.bincount(node_of_hit, ch[:, 1], n_nodes)], axis=1) / cnt[:, None]
+    stats["nodes"] = n_nodes
+    node_end = np.full(2 * nc, -1, np.int64)  # node of each end row (rows order: cand, cand + n_p)
+    node_end[h] = node_of_hit
+    if reach_px > 0:
+        # ends whose own crossing search found nothing (a fragment as the nearest partner, a poor tangent) take
+        # the nearest node ahead of them on their end line: within reach_px along it, lateral_px across
+        free = np.flatnonzero(node_end < 0)
+        if len(free):
+            dd, nn = cKDTree(xy).query(E[free], k=3, distance_upper_bound=float(reach_px))
+            best = np.full(len(free), -1, np.int64)
+            best_d = np.full(len(free), np.inf)
+            for col in range(nn.shape[1]):
+                ok = np.isfinite(dd[:, col])
+                jj = np.where(ok, nn[:, col], 0)
+                w = xy[jj] - E[free]
+                along = w[:, 0] * U[free, 0] + w[:, 1] * U[free, 1]
+                across = np.abs(w[:, 0] * U[free, 1] - w[:, 1] * U[free, 0])
+                ok &= (along >= -1.0) & (across <= lateral_px) & (dd[:, col] < best_d)
+                best[ok] = jj[ok]
+                best_d[ok] = dd[ok, col]
+            node_end[free] = best
+            stats["ends_associated"] = int((best >= 0).sum())
+    # a node is a crossing (an X), not a T or an L at a silhouette or shadow: ends of both families, and the
+    # pieces of one family's line on both sides of it, each end line passing within lateral_px of it
+    he = np.flatnonzero(node_end >= 0)
+    nd = node_end[he]
+    w = xy[nd] - E[he]
+    across = np.abs(w[:, 0] * U[he, 1] - w[:, 1] * U[he, 0])
+    off_line = np.bincount(nd, across > lateral_px, n_nodes) > 0
+    fam_e = fe[he]
+    has = np.zeros((n_nodes, 2), bool)
+    has[nd, fam_e - 1] = True
+    # both sides: the sum of the outward directions of a family's ends is short against their count
+    sx = np.zeros((n_nodes, 2))
+    sy = np.zeros((n_nodes, 2))
+    ne = np.zeros((n_nodes, 2))
+    np.add.at(sx, (nd, fam_e - 1), U[he, 0])
+    np.add.at(sy, (nd, fam_e - 1), U[he, 1])
+    np.add.at(ne, (nd, fam_e - 1), 1.0)
+    two_sided = (ne >= 2) & (np.hypot(sx, sy) <= ne - 1.5)
+    x_node = has.all(axis=1) & two_sided.any(axis=1) & ~off_line
+    stats["nodes_not_crossing"] = int((~x_node).sum())
+    node_end[he[~x_node[nd]]] = -1
+    # 3. edges: pieces with a node at both ends
+    a_n, b_n = node_end[:nc], node_end[nc:]
+    ed = np.flatnonzero((a_n >= 0) & (b_n >= 0) & (a_n != b_n))
+    if len(ed) == 0:
+        return stats
+    a_j = a_n[ed]
+    b_j = b_n[ed]
+    fam_s = fam[sid[first[cand[ed]]]].astype(np.int64)
+    dq = xy[b_j] - xy[a_j]
+    mid = 0.5 * (xy[a_j] + xy[b_j])
+    elen = np.hypot(dq[:, 0], dq[:, 1])
+    edges, _, delta, eseg, _ = _ek.edge_steps(np.ascontiguousarray(ed, np.int64), np.ascontiguousarray(a_j), np.ascontiguousarray(b_j),
+                                             fam_s, np.ascontiguousarray(mid), np.ascontiguousarray(dq), elen, model.J_proj_cam,
+                                             float(model.cell_px), float(model.pattern.n1), float(model.pattern.n2), n_nodes)
+    stats["edges"] = int(len(edges))
+    if len(edges) == 0:
+        return stats
+    # 4. the default labeller on the node graph
+    lo = label_options if label_options is not None else LabelOptions()
+    lo = LabelOptions(**{**lo.__dict__, "depth_min_mm": float(depth_range_mm[0]), "depth_max_mm": float(depth_range_mm[1])})
+    obs = SimpleNamespace(q_junction=xy, edges=edges, edge_delta=delta)
+    lab = label_epipolar(obs, model, model.cam_normalised(xy), options=lo)
+    L = lab.labels
+    if _debug is not None:
+        _debug.update(locals())
+    ok_node = L[:, 0] != UNLABELLED
+    if not ok_node.any():
+        return stats
+    # 5. anchors: labelled pieces ending at a node (their family's index), labelled found junctions nearby
+    conflict = np.zeros(n_nodes, bool)
+    he = np.flatnonzero(node_end >= 0)
+    p_hit = cand[np.concatenate((np.arange(nc), np.arange(nc)))[he]]
+    anc = labelled[p_hit] & ok_node[node_end[he]]
+    if anc.any():
+        nd = node_end[he][anc]
+        f_a = fam[sid[first[p_hit[anc]]]] - 1
+        k_a = val[p_hit[anc]]
+        conflict[nd[L[nd, f_a] != k_a]] = True
+    jl = np.asarray(junction_labels, np.int64).reshape(-1, 2)
+    lj = np.flatnonzero(jl[:, 0] != UNLABELLED)
+    if len(lj):
+        d, nn = cKDTree(xy).query(np.asarray(q_junction, np.float64).reshape(-1, 2)[lj], distance_upper_bound=float(merge_px))
+        m = np.isfinite(d)
+        if m.any():
+            nd = nn[m]
+            bad = ok_node[nd] & np.any(L[nd] != jl[lj[m]], axis=1)
+            conflict[nd[bad]] = True
+    if conflict.any():
+        comp_bad = np.unique(lab.component[conflict])
+        stats["components_anchor_conflict"] = int(len(comp_bad))
+        drop = np.isin(lab.component, comp_bad)
+        ok_node &= ~drop
+    stats["nodes_labelled"] = int(ok_node.sum())
+    # 6. unlabelled pieces whose two end nodes are labelled and agree on their index
+    p_ed = cand[ed]
+    f_ed = fam_s - 1
+    both = ok_node[a_j] & ok_node[b_j] & ~labelled[p_ed]
+    k_a = L[a_j, f_ed]
+    k_b = L[b_j, f_ed]
+    sel = np.flatnonzero(both & (k_a == k_b))
+    p_sel = p_ed[sel]
+    k = k_a[sel]
+    if one_sided:
+        # measurements only: a piece with a labelled node at one end and no crossing at the other
+        a_all, b_all = node_end[:nc], node_end[nc:]
+        one = ~labelled[cand] & (((a_all >= 0) & (b_all < 0)) | ((a_all < 0) & (b_all >= 0)))
+        nd1 = np.maximum(a_all, b_all)
+        one &= ok_node[np.maximum(nd1, 0)] & (nd1 >= 0)
+        o1 = np.flatnonzero(one)
+        p_sel = np.concatenate((p_sel, cand[o1]))
+        k = np.concatenate((k, L[nd1[o1], fam[sid[first[cand[o1]]]] - 1]))
+    if len(p_sel) == 0:
+        return stats
+    lens = count[p_sel]
+    pos = np.repeat(first[p_sel], lens) + (np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens))
+    owner = np.repeat(np.arange(len(p_sel)), lens)
+    f0, l0 = first[p_sel][owner], last[p_sel][owner]
+    keep = np.minimum(ts[pos] - ts[f0], ts[l0] - ts[pos]) >= trim_px
+    if q_out is not None and len(sel):
+        # the samples near the crossings (pulled by the other line's light) of pieces between two nodes: moved
+        # onto the chord between the nodes, when they lie within lateral_px of it
+        n_two = int(lens[: len(sel)].sum())  # the two-node pieces come first
+        ends = np.flatnonzero(~keep[:n_two])
+        ow = owner[ends]
+        pa, pb = xy[a_j[sel][ow]], xy[b_j[sel][ow]]
+        d_ab = pb - pa
+        L_ab = np.hypot(d_ab[:, 0], d_ab[:, 1])
+        t_ab = d_ab / L_ab[:, None]
+        qs = q[sid[pos[ends]]]
+        w_ = qs - pa
+        along = w_[:, 0] * t_ab[:, 0] + w_[:, 1] * t_ab[:, 1]
+        across = np.abs(w_[:, 0] * t_ab[:, 1] - w_[:, 1] * t_ab[:, 0])
+        mv = (across <= lateral_px) & (along > 0) & (along < L_ab)
+        mvi = ends[mv]
+        q_out[sid[pos[mvi]]] = pa[mv] + along[mv, None] * t_ab[mv]
+        keep[mvi] = True
+        stats["samples_moved"] = int(len(mvi))
+    w = pos[keep]
+    if len(w) == 0:
+        return stats
+    index[sid[w]] = k[owner[keep]]
+    seed_jid[sid[w]] = -1
+    stats["pieces"] = int(np.unique(owner[keep]).size)
+    stats["samples"] = int(len(w))
+    return stats
