@@ -89,6 +89,11 @@ def label_piece_junctions(
     reach_px: float = 0.0,
     lateral_px: float = 1.0,
     one_sided: bool = False,
+    x_both: bool = True,
+    move_ends: bool = True,
+    fit_interior: bool = True,
+    node_weight_cap: int = 1,
+    node_weight_pow: float = 1.0,
     q_out: np.ndarray | None = None,
     label_options=None,
     _debug: dict | None = None,
@@ -137,8 +142,10 @@ def label_piece_junctions(
     pairs = cKDTree(ch).query_pairs(float(merge_px), output_type="ndarray")
     node_of_hit = _union_find_pairs(len(h), pairs)
     n_nodes = int(node_of_hit.max()) + 1
-    cnt = np.bincount(node_of_hit, minlength=n_nodes).astype(np.float64)
-    xy = np.stack([np.bincount(node_of_hit, ch[:, 0], n_nodes), np.bincount(node_of_hit, ch[:, 1], n_nodes)], axis=1) / cnt[:, None]
+    # position: the estimates weighted by how well their end line is known (samples of their piece)
+    wgt = np.minimum(count[cand[np.concatenate((np.arange(nc), np.arange(nc)))[h]]], float(node_weight_cap)).astype(np.float64) ** node_weight_pow
+    cnt = np.bincount(node_of_hit, wgt, minlength=n_nodes)
+    xy = np.stack([np.bincount(node_of_hit, wgt * ch[:, 0], n_nodes), np.bincount(node_of_hit, wgt * ch[:, 1], n_nodes)], axis=1) / cnt[:, None]
     stats["nodes"] = n_nodes
     node_end = np.full(2 * nc, -1, np.int64)  # node of each end row (rows order: cand, cand + n_p)
     node_end[h] = node_of_hit
@@ -179,7 +186,7 @@ def label_piece_junctions(
     np.add.at(sy, (nd, fam_e - 1), U[he, 1])
     np.add.at(ne, (nd, fam_e - 1), 1.0)
     two_sided = (ne >= 2) & (np.hypot(sx, sy) <= ne - 1.5)
-    x_node = has.all(axis=1) & two_sided.any(axis=1) & ~off_line
+    x_node = has.all(axis=1) & (two_sided.all(axis=1) if x_both else two_sided.any(axis=1)) & ~off_line
     stats["nodes_not_crossing"] = int((~x_node).sum())
     node_end[he[~x_node[nd]]] = -1
     # 3. edges: pieces with a node at both ends
@@ -260,13 +267,33 @@ def label_piece_junctions(
     owner = np.repeat(np.arange(len(p_sel)), lens)
     f0, l0 = first[p_sel][owner], last[p_sel][owner]
     keep = np.minimum(ts[pos] - ts[f0], ts[l0] - ts[pos]) >= trim_px
-    if q_out is not None and len(sel):
+    if move_ends and q_out is not None and len(sel):
         # the samples near the crossings (pulled by the other line's light) of pieces between two nodes: moved
         # onto the chord between the nodes, when they lie within lateral_px of it
         n_two = int(lens[: len(sel)].sum())  # the two-node pieces come first
         ends = np.flatnonzero(~keep[:n_two])
         ow = owner[ends]
-        pa, pb = xy[a_j[sel][ow]], xy[b_j[sel][ow]]
+        npc = len(sel)
+        na, nb = xy[a_j[sel]], xy[b_j[sel]]
+        if fit_interior:
+            # the piece's line: a total-least-squares fit through its interior samples (beyond the pull) and
+            # its two nodes
+            inner = np.flatnonzero(keep[:n_two])
+            io = owner[inner]
+            qi = q[sid[pos[inner]]]
+            wsum = np.bincount(io, minlength=npc) + 2.0
+            mx = (np.bincount(io, qi[:, 0], npc) + na[:, 0] + nb[:, 0]) / wsum
+            my = (np.bincount(io, qi[:, 1], npc) + na[:, 1] + nb[:, 1]) / wsum
+            dxi, dyi = qi[:, 0] - mx[io], qi[:, 1] - my[io]
+            sxx = np.bincount(io, dxi * dxi, npc) + (na[:, 0] - mx) ** 2 + (nb[:, 0] - mx) ** 2
+            syy = np.bincount(io, dyi * dyi, npc) + (na[:, 1] - my) ** 2 + (nb[:, 1] - my) ** 2
+            sxy = np.bincount(io, dxi * dyi, npc) + (na[:, 0] - mx) * (na[:, 1] - my) + (nb[:, 0] - mx) * (nb[:, 1] - my)
+            ang = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+            tdir = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+            tdir *= np.sign(np.sum(tdir * (nb - na), axis=1))[:, None]
+            na = np.stack([mx, my], axis=1) + np.sum((na - np.stack([mx, my], axis=1)) * tdir, axis=1)[:, None] * tdir
+            nb = np.stack([mx, my], axis=1) + np.sum((nb - np.stack([mx, my], axis=1)) * tdir, axis=1)[:, None] * tdir
+        pa, pb = na[ow], nb[ow]
         d_ab = pb - pa
         L_ab = np.hypot(d_ab[:, 0], d_ab[:, 1])
         t_ab = d_ab / L_ab[:, None]
