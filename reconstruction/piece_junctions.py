@@ -36,34 +36,147 @@ over the pairs of a k-d tree query.
 
 from __future__ import annotations
 
+import math
+
 from types import SimpleNamespace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from reconstruction import _extract_kernels as _ek
 from reconstruction._continuation_kernels import piece_ends
+from reconstruction._jit import njit
 from reconstruction._label_kernels import crossing_hits_traces
 from reconstruction.piece_seeds import _SIN_MIN_CROSSING, _k_refine
 from reconstruction.rigmodel import UNLABELLED, RigModel
 
 
-def _union_find_pairs(n: int, pairs: np.ndarray) -> np.ndarray:
-    """Component ids (0..C−1, numbered by their lowest member) of n items joined by pairs (K, 2)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+@njit
+def _find(parent, a):
+    while parent[a] != a:
+        parent[a] = parent[parent[a]]
+        a = parent[a]
+    return a
 
-    if len(pairs) == 0:
-        return np.arange(n)
-    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, comp = connected_components(g, directed=False)
-    # renumber by lowest member
-    first = np.full(comp.max() + 1, n)
-    np.minimum.at(first, comp, np.arange(n))
-    order = np.argsort(first)
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    return rank[comp]
+
+@njit
+def _k_number(parent):
+    """Component ids from a union–find forest, numbered by their lowest member."""
+    n = parent.shape[0]
+    out = np.empty(n, np.int64)
+    ids = np.full(n, -1, np.int64)
+    m = 0
+    for a in range(n):
+        r = _find(parent, a)
+        if ids[r] < 0:
+            ids[r] = m
+            m += 1
+        out[a] = ids[r]
+    return out
+
+
+@njit
+def _k_components(n, edges):
+    """Connected components (numbered by their lowest member) of n items joined by edges (E, 2)."""
+    parent = np.arange(n)
+    for k in range(edges.shape[0]):
+        a = _find(parent, edges[k, 0])
+        b = _find(parent, edges[k, 1])
+        if a != b:
+            parent[max(a, b)] = min(a, b)
+    return _k_number(parent)
+
+
+@njit
+def _k_cluster(c, radius):
+    """Single-linkage clusters of the points c (N, 2) closer than radius (bucket grid of cells radius wide,
+    union–find): cluster ids numbered by their lowest member."""
+    n = c.shape[0]
+    parent = np.arange(n)
+    if n == 0:
+        return parent
+    x0 = c[:, 0].min()
+    y0 = c[:, 1].min()
+    gw = int((c[:, 0].max() - x0) / radius) + 1
+    gh = int((c[:, 1].max() - y0) / radius) + 1
+    cell = np.empty(n, np.int64)
+    for i in range(n):
+        cell[i] = int((c[i, 1] - y0) / radius) * gw + int((c[i, 0] - x0) / radius)
+    order = np.argsort(cell, kind="mergesort")
+    start = np.zeros(gw * gh + 1, np.int64)
+    for i in range(n):
+        start[cell[i] + 1] += 1
+    for b in range(gw * gh):
+        start[b + 1] += start[b]
+    r2 = radius * radius
+    for i in range(n):
+        cx = int((c[i, 0] - x0) / radius)
+        cy = int((c[i, 1] - y0) / radius)
+        for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
+            for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
+                b = yy * gw + xx
+                for t in range(start[b], start[b + 1]):
+                    j = order[t]
+                    if j <= i:
+                        continue
+                    dx = c[j, 0] - c[i, 0]
+                    dy = c[j, 1] - c[i, 1]
+                    if dx * dx + dy * dy < r2:
+                        a = _find(parent, i)
+                        bb = _find(parent, j)
+                        if a != bb:
+                            parent[max(a, bb)] = min(a, bb)
+    return _k_number(parent)
+
+
+@njit
+def _k_associate(E, U, rows, xy, reach, lateral):
+    """For the ends rows (position E[r], outward unit direction U[r]): the nearest node of xy (K, 2) within
+    reach of the end, not behind it (along ≥ −1 px) and within lateral of its end line; −1 where none."""
+    K = xy.shape[0]
+    out = np.full(rows.shape[0], -1, np.int64)
+    if K == 0:
+        return out
+    x0 = xy[:, 0].min() - reach
+    y0 = xy[:, 1].min() - reach
+    gw = int((xy[:, 0].max() - x0) / reach) + 2
+    gh = int((xy[:, 1].max() - y0) / reach) + 2
+    start = np.zeros(gw * gh + 1, np.int64)
+    cellk = np.empty(K, np.int64)
+    for k in range(K):
+        cellk[k] = int((xy[k, 1] - y0) / reach) * gw + int((xy[k, 0] - x0) / reach)
+        start[cellk[k] + 1] += 1
+    for b in range(gw * gh):
+        start[b + 1] += start[b]
+    fill = start[:-1].copy()
+    items = np.empty(K, np.int64)
+    for k in range(K):
+        items[fill[cellk[k]]] = k
+        fill[cellk[k]] += 1
+    r2 = reach * reach
+    for a in range(rows.shape[0]):
+        r = rows[a]
+        ex = E[r, 0]
+        ey = E[r, 1]
+        cx = int(math.floor((ex - x0) / reach))
+        cy = int(math.floor((ey - y0) / reach))
+        best = -1
+        bd = np.inf
+        for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
+            for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
+                b = yy * gw + xx
+                for t in range(start[b], start[b + 1]):
+                    k = items[t]
+                    wx = xy[k, 0] - ex
+                    wy = xy[k, 1] - ey
+                    d2 = wx * wx + wy * wy
+                    if d2 >= r2 or d2 >= bd:
+                        continue
+                    if wx * U[r, 0] + wy * U[r, 1] < -1.0 or abs(wx * U[r, 1] - wy * U[r, 0]) > lateral:
+                        continue
+                    bd = d2
+                    best = k
+        out[a] = best
+    return out
 
 
 def label_piece_junctions(
@@ -92,8 +205,6 @@ def label_piece_junctions(
     x_both: bool = True,
     move_ends: bool = True,
     fit_interior: bool = True,
-    node_weight_cap: int = 1,
-    node_weight_pow: float = 1.0,
     q_out: np.ndarray | None = None,
     label_options=None,
     _debug: dict | None = None,
@@ -129,23 +240,26 @@ def label_piece_junctions(
     E = np.ascontiguousarray(e[rows])
     U = np.ascontiguousarray(u[rows])
     fe = fam[sid[end_pos[rows]]].astype(np.int64)
-    # 1. each end's crossing with the nearest sample of the other family, refined beyond the crossing's pull
-    o, c = crossing_hits_traces(E, U, np.ones(2 * nc), fe, q, sid, tangent, fam, index, False, float(radius_px),
-                                _SIN_MIN_CROSSING, *grid)
-    h = np.flatnonzero(o >= 0)
-    if len(h) < 3:
+    # 1. the crossing of each end of an unlabelled piece with the nearest sample of the other family, refined
+    # beyond the crossing's pull (the ends of labelled pieces join the nodes below, by position)
+    srch = np.flatnonzero(~np.concatenate((labelled[cand], labelled[cand])))
+    if len(srch) < 3:
         return stats
-    _k_refine(np.ascontiguousarray(end_pos[rows[h]], np.int64), np.ascontiguousarray(o[h], np.int64), h.astype(np.int64),
+    o_s, c_s = crossing_hits_traces(np.ascontiguousarray(E[srch]), np.ascontiguousarray(U[srch]), np.ones(len(srch)), fe[srch],
+                                    q, sid, tangent, fam, index, False, float(radius_px), _SIN_MIN_CROSSING, *grid)
+    hs = np.flatnonzero(o_s >= 0)
+    if len(hs) < 3:
+        return stats
+    h = srch[hs]
+    c = c_s[hs]
+    _k_refine(np.ascontiguousarray(end_pos[rows[h]], np.int64), np.ascontiguousarray(o_s[hs], np.int64), np.arange(len(h), dtype=np.int64),
               c, first, last, piece, ts, q, sid, float(trim_px), int(anchor))
-    # 2. nodes: estimates closer than merge_px, single linkage
-    ch = c[h]
-    pairs = cKDTree(ch).query_pairs(float(merge_px), output_type="ndarray")
-    node_of_hit = _union_find_pairs(len(h), pairs)
+    # 2. nodes: estimates closer than merge_px, single linkage; a node is at their mean
+    ch = c
+    node_of_hit = _k_cluster(np.ascontiguousarray(ch), float(merge_px))
     n_nodes = int(node_of_hit.max()) + 1
-    # position: the estimates weighted by how well their end line is known (samples of their piece)
-    wgt = np.minimum(count[cand[np.concatenate((np.arange(nc), np.arange(nc)))[h]]], float(node_weight_cap)).astype(np.float64) ** node_weight_pow
-    cnt = np.bincount(node_of_hit, wgt, minlength=n_nodes)
-    xy = np.stack([np.bincount(node_of_hit, wgt * ch[:, 0], n_nodes), np.bincount(node_of_hit, wgt * ch[:, 1], n_nodes)], axis=1) / cnt[:, None]
+    cnt = np.bincount(node_of_hit, minlength=n_nodes).astype(np.float64)
+    xy = np.stack([np.bincount(node_of_hit, ch[:, 0], n_nodes), np.bincount(node_of_hit, ch[:, 1], n_nodes)], axis=1) / cnt[:, None]
     stats["nodes"] = n_nodes
     node_end = np.full(2 * nc, -1, np.int64)  # node of each end row (rows order: cand, cand + n_p)
     node_end[h] = node_of_hit
@@ -154,18 +268,7 @@ def label_piece_junctions(
         # the nearest node ahead of them on their end line: within reach_px along it, lateral_px across
         free = np.flatnonzero(node_end < 0)
         if len(free):
-            dd, nn = cKDTree(xy).query(E[free], k=3, distance_upper_bound=float(reach_px))
-            best = np.full(len(free), -1, np.int64)
-            best_d = np.full(len(free), np.inf)
-            for col in range(nn.shape[1]):
-                ok = np.isfinite(dd[:, col])
-                jj = np.where(ok, nn[:, col], 0)
-                w = xy[jj] - E[free]
-                along = w[:, 0] * U[free, 0] + w[:, 1] * U[free, 1]
-                across = np.abs(w[:, 0] * U[free, 1] - w[:, 1] * U[free, 0])
-                ok &= (along >= -1.0) & (across <= lateral_px) & (dd[:, col] < best_d)
-                best[ok] = jj[ok]
-                best_d[ok] = dd[ok, col]
+            best = _k_associate(E, U, free, xy, float(reach_px), float(lateral_px))
             node_end[free] = best
             stats["ends_associated"] = int((best >= 0).sum())
     # a node is a crossing (an X), not a T or an L at a silhouette or shadow: ends of both families, and the
@@ -206,11 +309,27 @@ def label_piece_junctions(
     stats["edges"] = int(len(edges))
     if len(edges) == 0:
         return stats
-    # 4. the default labeller on the node graph
-    lo = label_options if label_options is not None else LabelOptions()
+    # 4. the default labeller on the node graph: only the components that hold an unlabelled piece between two
+    # of their nodes and at least min_component nodes (the outlier split's smallest piece)
+    lo = label_options if label_options is not None else LabelOptions(min_component=3)
     lo = LabelOptions(**{**lo.__dict__, "depth_min_mm": float(depth_range_mm[0]), "depth_max_mm": float(depth_range_mm[1])})
-    obs = SimpleNamespace(q_junction=xy, edges=edges, edge_delta=delta)
-    lab = label_epipolar(obs, model, model.cam_normalised(xy), options=lo)
+    cc = _k_components(n_nodes, np.ascontiguousarray(edges, np.int64))
+    want = np.zeros(int(cc.max()) + 1, bool)
+    want[cc[edges[~labelled[cand[eseg]], 0]]] = True
+    size = np.bincount(cc)
+    use = want[cc] & (size[cc] >= lo.min_component)
+    stats["nodes_used"] = int(use.sum())
+    if not use.any():
+        return stats
+    sub = np.flatnonzero(use)
+    renum = np.full(n_nodes, -1, np.int64)
+    renum[sub] = np.arange(len(sub))
+    ek = use[edges[:, 0]]
+    obs = SimpleNamespace(q_junction=xy[sub], edges=renum[edges[ek]], edge_delta=delta[ek])
+    lab_sub = label_epipolar(obs, model, model.cam_normalised(xy[sub]), options=lo)
+    lab = SimpleNamespace(labels=np.full((n_nodes, 2), UNLABELLED, np.int64), component=np.full(n_nodes, -1, np.int64), stats=lab_sub.stats)
+    lab.labels[sub] = lab_sub.labels
+    lab.component[sub] = lab_sub.component
     L = lab.labels
     if _debug is not None:
         _debug.update(locals())
@@ -230,8 +349,9 @@ def label_piece_junctions(
     jl = np.asarray(junction_labels, np.int64).reshape(-1, 2)
     lj = np.flatnonzero(jl[:, 0] != UNLABELLED)
     if len(lj):
-        d, nn = cKDTree(xy).query(np.asarray(q_junction, np.float64).reshape(-1, 2)[lj], distance_upper_bound=float(merge_px))
-        m = np.isfinite(d)
+        qj = np.ascontiguousarray(np.asarray(q_junction, np.float64).reshape(-1, 2)[lj])
+        nn = _k_associate(qj, np.zeros_like(qj), np.arange(len(lj)), xy, float(merge_px), np.inf)
+        m = nn >= 0
         if m.any():
             nd = nn[m]
             bad = ok_node[nd] & np.any(L[nd] != jl[lj[m]], axis=1)
