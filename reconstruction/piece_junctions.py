@@ -129,6 +129,32 @@ def _k_cluster(c, radius):
 
 
 @njit
+def _k_near_mask(E, seed, cell, ring):
+    """seed (N,) bool of points E (N, 2), grown to every point within `ring` cells (of size cell, a square
+    neighbourhood on a bucket grid) of a seed point."""
+    n = E.shape[0]
+    out = seed.copy()
+    if n == 0:
+        return out
+    x0 = E[:, 0].min()
+    y0 = E[:, 1].min()
+    gw = int((E[:, 0].max() - x0) / cell) + 1
+    gh = int((E[:, 1].max() - y0) / cell) + 1
+    mark = np.zeros((gh, gw), np.bool_)
+    for i in range(n):
+        if seed[i]:
+            cx = int((E[i, 0] - x0) / cell)
+            cy = int((E[i, 1] - y0) / cell)
+            for yy in range(max(cy - ring, 0), min(cy + ring + 1, gh)):
+                for xx in range(max(cx - ring, 0), min(cx + ring + 1, gw)):
+                    mark[yy, xx] = True
+    for i in range(n):
+        if not out[i] and mark[int((E[i, 1] - y0) / cell), int((E[i, 0] - x0) / cell)]:
+            out[i] = True
+    return out
+
+
+@njit
 def _k_associate(E, U, rows, xy, reach, lateral):
     """For the ends rows (position E[r], outward unit direction U[r]): the nearest node of xy (K, 2) within
     reach of the end, not behind it (along ≥ −1 px) and within lateral of its end line; −1 where none."""
@@ -205,6 +231,7 @@ def label_piece_junctions(
     x_both: bool = True,
     move_ends: bool = True,
     fit_interior: bool = True,
+    ring_cells: int = 1,
     q_out: np.ndarray | None = None,
     label_options=None,
     _debug: dict | None = None,
@@ -242,7 +269,12 @@ def label_piece_junctions(
     fe = fam[sid[end_pos[rows]]].astype(np.int64)
     # 1. the crossing of each end of an unlabelled piece with the nearest sample of the other family, refined
     # beyond the crossing's pull (the ends of labelled pieces join the nodes below, by position)
-    srch = np.flatnonzero(~np.concatenate((labelled[cand], labelled[cand])))
+    unl = ~np.concatenate((labelled[cand], labelled[cand]))
+    if ring_cells > 0:
+        # and the ends of labelled pieces near them (within ring_cells junction steps): their crossings join the
+        # unlabelled patch's nodes to the labelled lines around it, whose nodes decide the offset with them
+        unl = _k_near_mask(E, unl, float(model.junction_step_cam_px), int(ring_cells))
+    srch = np.flatnonzero(unl)
     if len(srch) < 3:
         return stats
     o_s, c_s = crossing_hits_traces(np.ascontiguousarray(E[srch]), np.ascontiguousarray(U[srch]), np.ones(len(srch)), fe[srch],
