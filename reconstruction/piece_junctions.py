@@ -234,7 +234,7 @@ def label_piece_junctions(
     ring_cells: int = 1,
     q_out: np.ndarray | None = None,
     label_options=None,
-    _debug: dict | None = None,
+    debug: dict | None = None,
 ) -> dict:
     """Label unlabelled pieces from junctions built at the crossings of pieces (module doc).
 
@@ -363,8 +363,6 @@ def label_piece_junctions(
     lab.labels[sub] = lab_sub.labels
     lab.component[sub] = lab_sub.component
     L = lab.labels
-    if _debug is not None:
-        _debug.update(locals())
     ok_node = L[:, 0] != UNLABELLED
     if not ok_node.any():
         return stats
@@ -394,6 +392,8 @@ def label_piece_junctions(
         drop = np.isin(lab.component, comp_bad)
         ok_node &= ~drop
     stats["nodes_labelled"] = int(ok_node.sum())
+    if debug is not None:
+        debug.update(xy=xy, labels=np.where(ok_node[:, None], L, UNLABELLED))
     # 6. unlabelled pieces whose two end nodes are labelled and agree on their index
     p_ed = cand[ed]
     f_ed = fam_s - 1
