@@ -155,6 +155,40 @@ def _k_near_mask(E, seed, cell, ring):
 
 
 @njit
+def _k_continues(pts, dirs, fams, q, fam, reach, lateral, x0, y0, cell, gw, gh, start, items, pos_of):
+    """For each query (point pts[i], unit direction dirs[i], family fams[i]): is there a sample of that family on
+    a trace piece (outside every mixing zone) ahead of the point, 0 < along ≤ reach, within lateral of the
+    line? The line goes on through the point (an X), it does not stop there (a T). Samples from the frame's
+    bucket grid (`_label_kernels.sample_grid`)."""
+    n = pts.shape[0]
+    out = np.zeros(n, np.bool_)
+    ring = int(math.ceil(reach / cell))
+    for i in range(n):
+        px = pts[i, 0]
+        py = pts[i, 1]
+        cx = int(math.floor((px - x0) / cell))
+        cy = int(math.floor((py - y0) / cell))
+        for yy in range(max(cy - ring, 0), min(cy + ring + 1, gh)):
+            if out[i]:
+                break
+            for xx in range(max(cx - ring, 0), min(cx + ring + 1, gw)):
+                if out[i]:
+                    break
+                b = yy * gw + xx
+                for t in range(start[b], start[b + 1]):
+                    s = items[t]
+                    if fam[s] != fams[i] or pos_of[s] < 0:
+                        continue
+                    wx = q[s, 0] - px
+                    wy = q[s, 1] - py
+                    a = wx * dirs[i, 0] + wy * dirs[i, 1]
+                    if a > 0.0 and a <= reach and abs(wx * dirs[i, 1] - wy * dirs[i, 0]) <= lateral:
+                        out[i] = True
+                        break
+    return out
+
+
+@njit
 def _k_associate(E, U, rows, xy, reach, lateral):
     """For the ends rows (position E[r], outward unit direction U[r]): the nearest node of xy (K, 2) within
     reach of the end, not behind it (along ≥ −1 px) and within lateral of its end line; −1 where none."""
@@ -232,6 +266,7 @@ def label_piece_junctions(
     move_ends: bool = True,
     fit_interior: bool = True,
     ring_cells: int = 1,
+    continue_px: float | None = None,
     q_out: np.ndarray | None = None,
     label_options=None,
     debug: dict | None = None,
@@ -321,7 +356,20 @@ def label_piece_junctions(
     np.add.at(sy, (nd, fam_e - 1), U[he, 1])
     np.add.at(ne, (nd, fam_e - 1), 1.0)
     two_sided = (ne >= 2) & (np.hypot(sx, sy) <= ne - 1.5)
-    x_node = has.all(axis=1) & (two_sided.all(axis=1) if x_both else two_sided.any(axis=1)) & ~off_line
+    through = two_sided.copy()
+    if continue_px is None:
+        continue_px = reach_px  # the far half of the crossing's gap
+    if continue_px > 0:
+        # a family seen on one side only: its line goes on past the node (a sample of its family on a trace
+        # beyond the node, on the end line: a fragment too short to be a piece counts)
+        one = has & ~two_sided
+        nq, fq = np.nonzero(one)
+        if len(nq):
+            dn = np.stack([sx[nq, fq], sy[nq, fq]], axis=1)  # outward: from the end through the node
+            dn /= np.maximum(np.hypot(dn[:, 0], dn[:, 1]), 1e-12)[:, None]
+            through[nq, fq] = _k_continues(np.ascontiguousarray(xy[nq]), np.ascontiguousarray(dn), (fq + 1).astype(np.int64), q, fam,
+                                           float(continue_px), float(lateral_px), *grid)
+    x_node = has.all(axis=1) & (through.all(axis=1) if x_both else through.any(axis=1)) & two_sided.any(axis=1) & ~off_line
     stats["nodes_not_crossing"] = int((~x_node).sum())
     node_end[he[~x_node[nd]]] = -1
     # 3. edges: pieces with a node at both ends
@@ -361,6 +409,7 @@ def label_piece_junctions(
     lab_sub = label_epipolar(obs, model, model.cam_normalised(xy[sub]), options=lo)
     lab = SimpleNamespace(labels=np.full((n_nodes, 2), UNLABELLED, np.int64), component=np.full(n_nodes, -1, np.int64), stats=lab_sub.stats)
     lab.labels[sub] = lab_sub.labels
+    stats["left_out"] = {k: v for k, v in lab_sub.stats["junctions_left_out"].items() if v}
     lab.component[sub] = lab_sub.component
     L = lab.labels
     ok_node = L[:, 0] != UNLABELLED
