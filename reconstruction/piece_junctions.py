@@ -9,29 +9,42 @@ labelled line on the other side) cannot advance into a band where both families 
 The crossings are still there: the mixing zone cuts every trace piece at every crossing, so each piece's end
 faces a crossing's gap and its end line meets the other family's piece through that gap. Here
 
-1. **Crossings.** Each end of every piece (labelled or not) of at least `min_samples` samples is intersected
-   with the nearest sample of the other family within `radius_px` (the crossing search of `label_samples`'
-   step 6, `_label_kernels.crossing_hits_traces`, any sample); the point is refined as the intersection of
-   the two pieces' end lines beyond the crossing's pull (`piece_seeds._k_refine`: from the first sample
-   `trim_px` inside each end, along the chord `anchor` samples further in).
-2. **Virtual junctions.** The estimates of one crossing (up to four: the two pieces of each line that end in
-   its gap) closer than `merge_px` to one another are one node (single linkage); its position is their mean.
-3. **Edges.** A piece with a node at each end is an edge: along a line of family f the other family's index
+1. **Crossings.** Each end of every unlabelled piece of at least `min_samples` samples, and of every labelled
+   piece within `ring_cells` junction steps of one (the labelled lines around the patch), is intersected with
+   the nearest sample of the other family within `radius_px` (the crossing search of `label_samples`' step 6,
+   `_label_kernels.crossing_hits_traces`, any sample); the point is refined as the intersection of the two
+   pieces' end lines beyond the crossing's pull (`piece_seeds._k_refine`: from the first sample `trim_px`
+   inside each end, along the chord `anchor` samples further in).
+2. **Nodes.** The estimates of one crossing (up to four: the two pieces of each line that end in its gap)
+   closer than `merge_px` to one another are one node (single linkage, `_k_cluster`); it sits at their mean.
+   An end without an estimate of its own takes the nearest node ahead of it on its end line (within
+   `reach_px`, half a crossing's gap, and `lateral_px` across it; `_k_associate`).
+3. **Crossings, not T's.** A node is kept only where both families' pieces end at it, each end line passes
+   within `lateral_px` of it, one family's line has pieces on both sides of it, and the other family's line
+   either has pieces on both sides too or shows a trace sample past the node on its end line within
+   `continue_px` (`_k_continues`: a fragment too short to be a piece). A T or an L is a silhouette, a shadow
+   or the pattern's rim (decision 0041); built as a node it joins two surfaces.
+4. **Edges.** A piece with a node at each end is an edge: along a line of family f the other family's index
    changes by ±1 (the piece spans one cell), with the sign from the predicted camera→projector Jacobian as
    extraction's edges (`_extract_kernels.edge_steps`, which also drops an edge more than 1.6× the shortest
    edge of its family at either node: it skipped a crossing nobody saw).
-4. **Labels.** The node graph goes to the default labeller (`labelling.label_epipolar`): one integer offset per
-   connected component, chosen by the epipolar residual of all its nodes, the pattern's extent, the depth
-   range, the ambiguity margin and the outlier splitting, exactly as for found junctions.
-5. **Anchors.** A node where a labelled piece of family f ends carries that piece's index for f; a node within
+5. **Labels.** The components of the node graph that hold an unlabelled piece between two of their nodes and
+   at least 3 nodes go to the default labeller (`labelling.label_epipolar`): one integer offset per
+   component, chosen by the epipolar residual of all its nodes, the pattern's extent, the depth range, the
+   ambiguity margin and the outlier splitting, exactly as for found junctions.
+6. **Anchors.** A node where a labelled piece of family f ends carries that piece's index for f; a node within
    `merge_px` of a labelled found junction carries its (i, j). A component any of whose labelled nodes
-   disagrees with an anchor is left out entirely (one wrong edge or a node joining two surfaces).
-6. **Pieces.** An unlabelled piece whose two end nodes are labelled and give it the same index (the index of
-   its family) takes that index; its samples within `trim_px` of its ends are left to the gap filling. Evidence
-   from two directions: the component's offset (many crossings, both families) and both ends of the piece.
+   disagrees with an anchor is left out entirely (one wrong edge, or a node joining two surfaces).
+7. **Pieces.** An unlabelled piece whose two end nodes are labelled and give it the same index (the index of
+   its family) takes that index. Its samples within `trim_px` of its ends (pulled by the crossings' light)
+   are moved onto the piece's line, a total-least-squares fit through its other samples and its two nodes,
+   when they lie within `lateral_px` of it: the pieces in these bands are 2–8 samples long, so the trims
+   would leave little of them, and the gap filling needs anchors 3 samples inside each end.
+   Evidence from two directions: the component's offset (many crossings, both families) and both ends of
+   the piece. One-sided pieces (a labelled node at one end only) stay out (decision 0049; measured here too).
 
-All per-end work is vectorised (`piece_ends`, `crossing_hits_traces`, `_k_refine`); the nodes are a union–find
-over the pairs of a k-d tree query.
+The per-end and per-node loops are compiled (`piece_ends`, `crossing_hits_traces`, `_k_refine`, `_k_cluster`,
+`_k_associate`, `_k_continues`, `_k_components`); the rest is NumPy over the nodes and pieces.
 """
 
 from __future__ import annotations
@@ -275,13 +288,26 @@ def label_piece_junctions(
 
     q (P, 2) camera px, fam (P,) 1/2 of all samples; the traces as `labelling.label_samples` builds them: sid
     (n,) sample ids by piece and position, piece (n,) non-decreasing piece ids, ts (n,) position along the piece
-    (px), tangent (n, 2) unit. index (P,) float (NaN: unlabelled) and seed_jid (P,) int are written in place
-    (seed_jid −1: no found junction). radius_px: how far from a piece's end the crossing is searched; grid: the
-    frame's bucket grid of the samples (`labelling._sample_grid`, cells ≥ radius_px). q_junction (M, 2),
-    junction_labels (M, 2): the found junctions and their labels (anchors). merge_px: crossing estimates this
-    close are one node (default 0.25 junction steps). label_options: `labelling.LabelOptions` (the depth range
-    is set from depth_range_mm). Returns counts: nodes, edges, nodes labelled, components rejected by an
-    anchor, pieces and samples labelled."""
+    (px), tangent (n, 2) unit. index (P,) float (NaN: unlabelled), seed_jid (P,) int and q_out (P, 2) (the
+    positions to triangulate; None: the end samples are not moved) are written in place (seed_jid −1: no
+    found junction). radius_px: how far from a piece's end the crossing is searched; grid: the frame's bucket
+    grid of the samples (`labelling._sample_grid`, cells ≥ radius_px). q_junction (M, 2), junction_labels
+    (M, 2): the found junctions and their labels (anchors). trim_px: the pull of a crossing along a piece
+    (`cross_trim_sigma`·σ). merge_px: crossing estimates this close are one node (default 0.25 junction steps).
+    min_samples: shorter pieces give no crossing estimates and no edges. anchor: the end lines' chord length
+    in samples. reach_px: how far ahead of a piece's end its node may lie (half a crossing's gap; 0: only the
+    end's own estimate); lateral_px: how far off the end's line (camera px). continue_px: how far past a node a
+    one-sided family's line must show a trace sample (default reach_px). ring_cells: the labelled pieces whose
+    ends are searched too lie within this many junction steps of an unlabelled piece's end. label_options:
+    `labelling.LabelOptions` (default: min_component 3; the depth range is set from depth_range_mm).
+    Measurement switches (defaults are the method): x_both (False: one family through the node suffices),
+    move_ends (False: the samples within trim_px of a piece's ends stay unlabelled), fit_interior (False: moved
+    onto the chord between the nodes), one_sided (True: also pieces with a labelled node at one end and no node
+    at the other: decision 0049's one-sided evidence, measured wrong on tabletop). debug: filled with the nodes'
+    positions `xy` and labels `labels` (UNLABELLED where none).
+    Returns counts: nodes, edges, nodes used and labelled, ends associated by position, nodes that are no
+    crossing, components rejected by an anchor, the sub-labeller's left-out reasons, pieces and samples
+    labelled, end samples moved."""
     from reconstruction.labelling import LabelOptions, label_epipolar
 
     stats = {"nodes": 0, "edges": 0, "nodes_labelled": 0, "components_anchor_conflict": 0, "pieces": 0, "samples": 0}
