@@ -202,6 +202,33 @@ def _k_continues(pts, dirs, fams, q, fam, reach, lateral, x0, y0, cell, gw, gh, 
 
 
 @njit
+def _k_node_ends(node_end, E, U, fe, xy, lateral):
+    """Per node and family (columns 0, 1 = families 1, 2) from the ends joined to it (node_end (R,), −1: none;
+    ends at E (R, 2), outward unit U (R, 2), family fe (R,)): has an end, the sums of the outward directions
+    (sx, sy) and the number of ends; per node: off_line, an end line passing farther than lateral from it."""
+    K = xy.shape[0]
+    has = np.zeros((K, 2), np.bool_)
+    sx = np.zeros((K, 2))
+    sy = np.zeros((K, 2))
+    ne = np.zeros((K, 2))
+    off = np.zeros(K, np.bool_)
+    for r in range(node_end.shape[0]):
+        k = node_end[r]
+        if k < 0:
+            continue
+        f = fe[r] - 1
+        has[k, f] = True
+        sx[k, f] += U[r, 0]
+        sy[k, f] += U[r, 1]
+        ne[k, f] += 1.0
+        wx = xy[k, 0] - E[r, 0]
+        wy = xy[k, 1] - E[r, 1]
+        if abs(wx * U[r, 1] - wy * U[r, 0]) > lateral:
+            off[k] = True
+    return has, sx, sy, ne, off
+
+
+@njit
 def _k_associate(E, U, rows, xy, reach, lateral):
     """For the ends rows (position E[r], outward unit direction U[r]): the nearest node of xy (K, 2) within
     reach of the end, not behind it (along ≥ −1 px) and within lateral of its end line; −1 where none."""
@@ -366,21 +393,7 @@ def label_piece_junctions(
             stats["ends_associated"] = int((best >= 0).sum())
     # a node is a crossing (an X), not a T or an L at a silhouette or shadow: ends of both families, and the
     # pieces of one family's line on both sides of it, each end line passing within lateral_px of it
-    he = np.flatnonzero(node_end >= 0)
-    nd = node_end[he]
-    w = xy[nd] - E[he]
-    across = np.abs(w[:, 0] * U[he, 1] - w[:, 1] * U[he, 0])
-    off_line = np.bincount(nd, across > lateral_px, n_nodes) > 0
-    fam_e = fe[he]
-    has = np.zeros((n_nodes, 2), bool)
-    has[nd, fam_e - 1] = True
-    # both sides: the sum of the outward directions of a family's ends is short against their count
-    sx = np.zeros((n_nodes, 2))
-    sy = np.zeros((n_nodes, 2))
-    ne = np.zeros((n_nodes, 2))
-    np.add.at(sx, (nd, fam_e - 1), U[he, 0])
-    np.add.at(sy, (nd, fam_e - 1), U[he, 1])
-    np.add.at(ne, (nd, fam_e - 1), 1.0)
+    has, sx, sy, ne, off_line = _k_node_ends(node_end, E, U, fe, xy, float(lateral_px))
     two_sided = (ne >= 2) & (np.hypot(sx, sy) <= ne - 1.5)
     through = two_sided.copy()
     if continue_px is None:
@@ -397,7 +410,7 @@ def label_piece_junctions(
                                            float(continue_px), float(lateral_px), *grid)
     x_node = has.all(axis=1) & (through.all(axis=1) if x_both else through.any(axis=1)) & two_sided.any(axis=1) & ~off_line
     stats["nodes_not_crossing"] = int((~x_node).sum())
-    node_end[he[~x_node[nd]]] = -1
+    node_end[(node_end >= 0) & ~x_node[np.maximum(node_end, 0)]] = -1
     # 3. edges: pieces with a node at both ends
     a_n, b_n = node_end[:nc], node_end[nc:]
     ed = np.flatnonzero((a_n >= 0) & (b_n >= 0) & (a_n != b_n))
