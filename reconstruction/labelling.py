@@ -513,7 +513,8 @@ class TraceOptions:
         its other end, on the piece's light sheet, lands on the next line of the other family
         (`reconstruction.piece_seeds`, decision 0089).
     piece_junctions: build junctions at the crossings of pieces where extraction found none and label them as
-        found ones (`reconstruction.piece_junctions`, decision 0092).
+        found ones (`reconstruction.piece_junctions`, decision 0092). Off by default: +0.8 to +1.9 coverage
+        points on the 1280 scenes for 3–4 ms of label time (decision 0092).
     """
 
     mix_sigma: float = 2.0
@@ -543,7 +544,7 @@ class TraceOptions:
     far_end_check: bool = True
     from_segments: bool = True
     piece_seeds: bool = True
-    piece_junctions: bool = True
+    piece_junctions: bool = False
 
 
 @dataclass(frozen=True, eq=False)

@@ -14,9 +14,9 @@ from reconstruction.labelling import LabelOptions, TraceOptions, label_epipolar,
 from reconstruction.piece_junctions import _k_associate, _k_cluster, _k_components
 from reconstruction.rigmodel import UNLABELLED, rig_model
 
-# the step measured on its own: the steps that also fill a hole in the junction labels (the continuation and
-# decision 0089's piece seeds, both before it) off
-_ALONE = {"continue_lines": False, "piece_seeds": False}
+# the step (off by default) measured on its own: the steps that also fill a hole in the junction labels (the
+# continuation and decision 0089's piece seeds, both before it) off
+_ALONE = {"continue_lines": False, "piece_seeds": False, "piece_junctions": True}
 
 
 def _true_index(s, q: np.ndarray, fam: np.ndarray) -> np.ndarray:
