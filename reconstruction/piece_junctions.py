@@ -532,7 +532,7 @@ def label_piece_junctions(
     keep = np.minimum(ts[pos] - ts[f0], ts[l0] - ts[pos]) >= trim_px
     if move_ends and q_out is not None and len(sel):
         # the samples near the crossings (pulled by the other line's light) of pieces between two nodes: moved
-        # onto the chord between the nodes, when they lie within lateral_px of it
+        # onto the piece's line (fit_interior; else the chord between the nodes) when within lateral_px of it
         n_two = int(lens[: len(sel)].sum())  # the two-node pieces come first
         ends = np.flatnonzero(~keep[:n_two])
         ow = owner[ends]
@@ -573,7 +573,7 @@ def label_piece_junctions(
     if len(w) == 0:
         return stats
     index[sid[w]] = k[owner[keep]]
-    seed_jid[sid[w]] = -1
+    seed_jid[sid[w]] = -1  # no found junction (the PLY's residual of such a sample is junction 0's, pipeline's rule)
     stats["pieces"] = int(np.unique(owner[keep]).size)
     stats["samples"] = int(len(w))
     return stats
