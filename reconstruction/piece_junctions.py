@@ -59,7 +59,7 @@ from reconstruction import _extract_kernels as _ek
 from reconstruction._continuation_kernels import piece_ends
 from reconstruction._jit import njit
 from reconstruction._label_kernels import crossing_hits_traces
-from reconstruction.piece_seeds import _SIN_MIN_CROSSING, _k_refine
+from reconstruction.piece_seeds import _SIN_MIN_CROSSING, _k_end_line, _k_refine
 from reconstruction.rigmodel import UNLABELLED, RigModel
 
 
@@ -107,13 +107,14 @@ def _k_cluster(c, radius):
     parent = np.arange(n)
     if n == 0:
         return parent
+    cs = radius
     x0 = c[:, 0].min()
     y0 = c[:, 1].min()
-    gw = int((c[:, 0].max() - x0) / radius) + 1
-    gh = int((c[:, 1].max() - y0) / radius) + 1
+    gw = int((c[:, 0].max() - x0) / cs) + 1
+    gh = int((c[:, 1].max() - y0) / cs) + 1
     cell = np.empty(n, np.int64)
     for i in range(n):
-        cell[i] = int((c[i, 1] - y0) / radius) * gw + int((c[i, 0] - x0) / radius)
+        cell[i] = int((c[i, 1] - y0) / cs) * gw + int((c[i, 0] - x0) / cs)
     order = np.argsort(cell, kind="mergesort")
     start = np.zeros(gw * gh + 1, np.int64)
     for i in range(n):
@@ -122,8 +123,8 @@ def _k_cluster(c, radius):
         start[b + 1] += start[b]
     r2 = radius * radius
     for i in range(n):
-        cx = int((c[i, 0] - x0) / radius)
-        cy = int((c[i, 1] - y0) / radius)
+        cx = int((c[i, 0] - x0) / cs)
+        cy = int((c[i, 1] - y0) / cs)
         for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
             for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
                 b = yy * gw + xx
@@ -229,6 +230,93 @@ def _k_node_ends(node_end, E, U, fe, xy, lateral):
 
 
 @njit
+def _k_end_pairs(E, U, pos, first, last, piece, ts, q, sid, trim_px, anchor, fe, rows, radius, sin_min):
+    """The crossing at each end rows[i]: among the ends of the other family within radius of its end sample
+    E (R, 2), the intersection of the two end lines that lies ahead of both ends (along their outward
+    directions, from −1 px to radius) and nearest to this end; lines meeting at a sine below sin_min are
+    skipped. An end's line lies beyond the crossing's pull (`piece_seeds._k_end_line` of trace position
+    pos[r]: from the first sample trim_px inside the end, along the chord `anchor` samples further in), or is
+    the end sample and its outward direction U where the piece is too short; computed when first needed.
+    Returns the partner end (−1: none) and the crossing c (n, 2)."""
+    R = E.shape[0]
+    n = rows.shape[0]
+    part = np.full(n, -1, np.int64)
+    c = np.full((n, 2), np.nan)
+    if R == 0:
+        return part, c
+    P = np.empty((R, 2))
+    D = np.empty((R, 2))
+    done = np.zeros(R, np.bool_)
+    cs = radius
+    x0 = E[:, 0].min()
+    y0 = E[:, 1].min()
+    gw = int((E[:, 0].max() - x0) / cs) + 1
+    gh = int((E[:, 1].max() - y0) / cs) + 1
+    start = np.zeros(gw * gh + 1, np.int64)
+    cellr = np.empty(R, np.int64)
+    for r in range(R):
+        cellr[r] = int((E[r, 1] - y0) / cs) * gw + int((E[r, 0] - x0) / cs)
+        start[cellr[r] + 1] += 1
+    for b in range(gw * gh):
+        start[b + 1] += start[b]
+    fill = start[:-1].copy()
+    items = np.empty(R, np.int64)
+    for r in range(R):
+        items[fill[cellr[r]]] = r
+        fill[cellr[r]] += 1
+    r2 = radius * radius
+    for i in range(n):
+        r = rows[i]
+        cx = int((E[r, 0] - x0) / cs)
+        cy = int((E[r, 1] - y0) / cs)
+        bd = np.inf
+        for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
+            for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
+                b = yy * gw + xx
+                for t in range(start[b], start[b + 1]):
+                    o = items[t]
+                    if fe[o] == fe[r]:
+                        continue
+                    ddx = E[o, 0] - E[r, 0]
+                    ddy = E[o, 1] - E[r, 1]
+                    if ddx * ddx + ddy * ddy >= r2:
+                        continue
+                    for z in (r, o):
+                        if not done[z]:
+                            ok, ax, ay, ux, uy = _k_end_line(pos[z], first, last, piece, ts, q, sid, trim_px, anchor)
+                            if ok:
+                                P[z, 0] = ax
+                                P[z, 1] = ay
+                                D[z, 0] = ux
+                                D[z, 1] = uy
+                            else:
+                                P[z, 0] = E[z, 0]
+                                P[z, 1] = E[z, 1]
+                                D[z, 0] = U[z, 0]
+                                D[z, 1] = U[z, 1]
+                            done[z] = True
+                    den = D[r, 0] * D[o, 1] - D[r, 1] * D[o, 0]
+                    if abs(den) < sin_min:
+                        continue
+                    wx = P[o, 0] - P[r, 0]
+                    wy = P[o, 1] - P[r, 1]
+                    tr = (wx * D[o, 1] - wy * D[o, 0]) / den
+                    X = P[r, 0] + tr * D[r, 0]
+                    Y = P[r, 1] + tr * D[r, 1]
+                    ar = (X - E[r, 0]) * D[r, 0] + (Y - E[r, 1]) * D[r, 1]
+                    ao = (X - E[o, 0]) * D[o, 0] + (Y - E[o, 1]) * D[o, 1]
+                    if ar < -1.0 or ar > radius or ao < -1.0 or ao > radius:
+                        continue
+                    d2 = (X - E[r, 0]) ** 2 + (Y - E[r, 1]) ** 2
+                    if d2 < bd:
+                        bd = d2
+                        part[i] = o
+                        c[i, 0] = X
+                        c[i, 1] = Y
+    return part, c
+
+
+@njit
 def _k_associate(E, U, rows, xy, reach, lateral):
     """For the ends rows (position E[r], outward unit direction U[r]): the nearest node of xy (K, 2) within
     reach of the end, not behind it (along ≥ −1 px) and within lateral of its end line; −1 where none."""
@@ -236,14 +324,15 @@ def _k_associate(E, U, rows, xy, reach, lateral):
     out = np.full(rows.shape[0], -1, np.int64)
     if K == 0:
         return out
-    x0 = xy[:, 0].min() - reach
-    y0 = xy[:, 1].min() - reach
-    gw = int((xy[:, 0].max() - x0) / reach) + 2
-    gh = int((xy[:, 1].max() - y0) / reach) + 2
+    cs = reach
+    x0 = xy[:, 0].min() - cs
+    y0 = xy[:, 1].min() - cs
+    gw = int((xy[:, 0].max() - x0) / cs) + 2
+    gh = int((xy[:, 1].max() - y0) / cs) + 2
     start = np.zeros(gw * gh + 1, np.int64)
     cellk = np.empty(K, np.int64)
     for k in range(K):
-        cellk[k] = int((xy[k, 1] - y0) / reach) * gw + int((xy[k, 0] - x0) / reach)
+        cellk[k] = int((xy[k, 1] - y0) / cs) * gw + int((xy[k, 0] - x0) / cs)
         start[cellk[k] + 1] += 1
     for b in range(gw * gh):
         start[b + 1] += start[b]
@@ -257,8 +346,8 @@ def _k_associate(E, U, rows, xy, reach, lateral):
         r = rows[a]
         ex = E[r, 0]
         ey = E[r, 1]
-        cx = int(math.floor((ex - x0) / reach))
-        cy = int(math.floor((ey - y0) / reach))
+        cx = int(math.floor((ex - x0) / cs))
+        cy = int(math.floor((ey - y0) / cs))
         best = -1
         bd = np.inf
         for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
@@ -308,6 +397,7 @@ def label_piece_junctions(
     ring_cells: int = 1,
     continue_px: float | None = None,
     junction_nodes: bool = False,
+    end_pairs: bool = True,
     q_out: np.ndarray | None = None,
     label_options=None,
     debug: dict | None = None,
@@ -369,15 +459,26 @@ def label_piece_junctions(
     srch = np.flatnonzero(unl)
     if len(srch) < 3:
         return stats
-    o_s, c_s = crossing_hits_traces(np.ascontiguousarray(E[srch]), np.ascontiguousarray(U[srch]), np.ones(len(srch)), fe[srch],
-                                    q, sid, tangent, fam, index, False, float(radius_px), _SIN_MIN_CROSSING, *grid)
-    hs = np.flatnonzero(o_s >= 0)
-    if len(hs) < 3:
-        return stats
-    h = srch[hs]
-    c = c_s[hs]
-    _k_refine(np.ascontiguousarray(end_pos[rows[h]], np.int64), np.ascontiguousarray(o_s[hs], np.int64), np.arange(len(h), dtype=np.int64),
-              c, first, last, piece, ts, q, sid, float(trim_px), int(anchor))
+    if end_pairs:
+        # the crossing as the intersection of the end's line with the end line of a piece of the other family
+        # ending in the same gap (both beyond the crossing's pull): a search over the pieces' ends only
+        o_s, c_s = _k_end_pairs(E, U, np.ascontiguousarray(end_pos[rows]), first, last, piece, ts, q, sid, float(trim_px), int(anchor),
+                                fe, srch.astype(np.int64), float(reach_px if reach_px > 0 else radius_px), _SIN_MIN_CROSSING)
+        hs = np.flatnonzero(o_s >= 0)
+        if len(hs) < 3:
+            return stats
+        h = srch[hs]
+        c = c_s[hs]
+    else:
+        o_s, c_s = crossing_hits_traces(np.ascontiguousarray(E[srch]), np.ascontiguousarray(U[srch]), np.ones(len(srch)), fe[srch],
+                                        q, sid, tangent, fam, index, False, float(radius_px), _SIN_MIN_CROSSING, *grid)
+        hs = np.flatnonzero(o_s >= 0)
+        if len(hs) < 3:
+            return stats
+        h = srch[hs]
+        c = c_s[hs]
+        _k_refine(np.ascontiguousarray(end_pos[rows[h]], np.int64), np.ascontiguousarray(o_s[hs], np.int64), np.arange(len(h), dtype=np.int64),
+                  c, first, last, piece, ts, q, sid, float(trim_px), int(anchor))
     # 2. nodes: estimates closer than merge_px, single linkage; a node is at their mean
     ch = c
     node_of_hit = _k_cluster(np.ascontiguousarray(ch), float(merge_px))
