@@ -10,11 +10,14 @@ The crossings are still there: the mixing zone cuts every trace piece at every c
 faces a crossing's gap and its end line meets the other family's piece through that gap. Here
 
 1. **Crossings.** Each end of every unlabelled piece of at least `min_samples` samples, and of every labelled
-   piece within `ring_cells` junction steps of one (the labelled lines around the patch), is intersected with
-   the nearest sample of the other family within `radius_px` (the crossing search of `label_samples`' step 6,
-   `_label_kernels.crossing_hits_traces`, any sample); the point is refined as the intersection of the two
-   pieces' end lines beyond the crossing's pull (`piece_seeds._k_refine`: from the first sample `trim_px`
-   inside each end, along the chord `anchor` samples further in).
+   piece within `ring_cells` junction steps of one (the labelled lines around the patch), is paired with the
+   end of a piece of the other family ending in the same gap (within `reach_px`, half a crossing's gap): the
+   crossing is the intersection of the two end lines beyond the crossing's pull (`piece_seeds._k_end_line`:
+   from the first sample `trim_px` inside each end, along the chord `anchor` samples further in; the end's
+   tangent on pieces too short for that), ahead of both ends, the nearest such one (`_k_end_pairs`). With
+   `end_pairs=False` the partner is instead the nearest sample of the other family within `radius_px` (the
+   crossing search of `label_samples`' step 6, `_label_kernels.crossing_hits_traces`), refined as decision
+   0089 refines its far crossings (`piece_seeds._k_refine`): the same gains, more time.
 2. **Nodes.** The estimates of one crossing (up to four: the two pieces of each line that end in its gap)
    closer than `merge_px` to one another are one node (single linkage, `_k_cluster`); it sits at their mean.
    An end without an estimate of its own takes the nearest node ahead of it on its end line (within
@@ -43,8 +46,8 @@ faces a crossing's gap and its end line meets the other family's piece through t
    Evidence from two directions: the component's offset (many crossings, both families) and both ends of
    the piece. One-sided pieces (a labelled node at one end only) stay out (decision 0049; measured here too).
 
-The per-end and per-node loops are compiled (`piece_ends`, `crossing_hits_traces`, `_k_refine`, `_k_cluster`,
-`_k_associate`, `_k_continues`, `_k_components`); the rest is NumPy over the nodes and pieces.
+The per-end and per-node loops are compiled (`piece_ends`, `_k_end_pairs`, `_k_cluster`, `_k_associate`,
+`_k_node_ends`, `_k_continues`, `_k_components`); the rest is NumPy over the nodes and pieces.
 """
 
 from __future__ import annotations
@@ -423,7 +426,8 @@ def label_piece_junctions(
     onto the chord between the nodes), one_sided (True: also pieces with a labelled node at one end and no node
     at the other: decision 0049's one-sided evidence, measured wrong on tabletop), junction_nodes (True: the
     labelled pieces' ends around a patch are not searched; the labelled found junctions within ring_cells steps
-    are nodes instead: less time, a third less gain). debug: filled with the nodes'
+    are nodes instead: less time, a third less gain), end_pairs (False: step 1's partner is the nearest sample
+    of the other family, refined by `piece_seeds._k_refine`). debug: filled with the nodes'
     positions `xy` and labels `labels` (UNLABELLED where none).
     Returns counts: nodes, edges, nodes used and labelled, ends associated by position, nodes that are no
     crossing, components rejected by an anchor, the sub-labeller's left-out reasons, pieces and samples
