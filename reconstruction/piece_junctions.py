@@ -371,7 +371,7 @@ def _k_associate(E, U, rows, xy, reach, lateral):
     return out
 
 
-def label_piece_junctions(
+def _label_piece_junctions_reference(
     q: np.ndarray,
     fam: np.ndarray,
     sid: np.ndarray,
@@ -405,7 +405,10 @@ def label_piece_junctions(
     label_options=None,
     debug: dict | None = None,
 ) -> dict:
-    """Label unlabelled pieces from junctions built at the crossings of pieces (module doc).
+    """The NumPy-glue implementation `label_piece_junctions` replaced (decision 0092, "Time"): the measurement
+    switches' path, and the fast path's reference in the tests (the same outputs bit for bit).
+
+    Label unlabelled pieces from junctions built at the crossings of pieces (module doc).
 
     q (P, 2) camera px, fam (P,) 1/2 of all samples; the traces as `labelling.label_samples` builds them: sid
     (n,) sample ids by piece and position, piece (n,) non-decreasing piece ids, ts (n,) position along the piece
@@ -681,4 +684,605 @@ def label_piece_junctions(
     seed_jid[sid[w]] = -1  # no found junction (the PLY's residual of such a sample is junction 0's, pipeline's rule)
     stats["pieces"] = int(np.unique(owner[keep]).size)
     stats["samples"] = int(len(w))
+    return stats
+
+
+# ---- the compiled path (the default options): the same outputs as `_label_piece_junctions_reference` ----
+
+
+@njit
+def _k_cluster_sweep(c, radius):
+    """`_k_cluster` by a sweep along x (points sorted by x, each compared with those less than radius to its
+    right): the same clusters and numbering (union–find, ids by lowest member) without a bucket grid over the
+    frame (the estimates are ~1500 points over the whole image, the grid's cells a few px wide)."""
+    n = c.shape[0]
+    parent = np.arange(n)
+    if n == 0:
+        return parent
+    order = np.argsort(c[:, 0])
+    r2 = radius * radius
+    for ii in range(n):
+        i = order[ii]
+        for jj in range(ii + 1, n):
+            j = order[jj]
+            if c[j, 0] - c[i, 0] >= radius:
+                break
+            dx = c[j, 0] - c[i, 0]
+            dy = c[j, 1] - c[i, 1]
+            if dx * dx + dy * dy < r2:
+                a = _find(parent, i)
+                bb = _find(parent, j)
+                if a != bb:
+                    parent[max(a, bb)] = min(a, bb)
+    return _k_number(parent)
+
+
+@njit
+def _k_nearest_sweep(E, U, rows, xy, order, xs, reach, lateral, use_dir):
+    """`_k_associate` over nodes sorted by x (order, xs = xy[order, 0]): for each end rows[a], the nearest node
+    closer than reach, not behind the end (along ≥ −1 px) and within lateral of its line (use_dir False: the
+    nearest closer than reach). −1 where none."""
+    out = np.full(rows.shape[0], -1, np.int64)
+    K = xs.shape[0]
+    if K == 0:
+        return out
+    r2 = reach * reach
+    for a in range(rows.shape[0]):
+        r = rows[a]
+        ex = E[r, 0]
+        ey = E[r, 1]
+        t = np.searchsorted(xs, ex - reach)
+        bd = np.inf
+        best = -1
+        while t < K and xs[t] <= ex + reach:
+            k = order[t]
+            t += 1
+            wx = xy[k, 0] - ex
+            wy = xy[k, 1] - ey
+            d2 = wx * wx + wy * wy
+            if d2 >= r2 or d2 > bd or (d2 == bd and k > best):
+                continue
+            if use_dir and (wx * U[r, 0] + wy * U[r, 1] < -1.0 or abs(wx * U[r, 1] - wy * U[r, 0]) > lateral):
+                continue
+            bd = d2
+            best = k
+        out[a] = best
+    return out
+
+
+@njit
+def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_samples, step_px, ring, trim_px, reach, sin_min):
+    """Steps 0–1: the pieces' ends (`piece_ends`), the candidate pieces (≥ min_samples samples), their end rows
+    (rows 0..nc−1 the first ends, nc..2nc−1 the last), the ends searched (unlabelled pieces' and, ring > 0, the
+    ends within ring junction steps of one) and their crossings (`_k_end_pairs`). Returns cand, first, last,
+    labelled, val, E, U, fe, the hit rows h and their crossings c (h empty when fewer than 3 ends are searched
+    or hit: nothing to do)."""
+    e, u, end_pos, labelled, val, _ = piece_ends(q, sid, piece, tangent, index, seed_jid, n_p, anchor)
+    first = end_pos[:n_p]
+    last = end_pos[n_p:]
+    nc = 0
+    for p in range(n_p):
+        if last[p] - first[p] + 1 >= min_samples:
+            nc += 1
+    cand = np.empty(nc, np.int64)
+    m = 0
+    for p in range(n_p):
+        if last[p] - first[p] + 1 >= min_samples:
+            cand[m] = p
+            m += 1
+    R = 2 * nc
+    E = np.empty((R, 2))
+    U = np.empty((R, 2))
+    fe = np.empty(R, np.int64)
+    ep = np.empty(R, np.int64)
+    unl = np.empty(R, np.bool_)
+    for r in range(R):
+        p = cand[r % nc]
+        row = p if r < nc else p + n_p
+        E[r, 0] = e[row, 0]
+        E[r, 1] = e[row, 1]
+        U[r, 0] = u[row, 0]
+        U[r, 1] = u[row, 1]
+        ep[r] = end_pos[row]
+        fe[r] = fam[sid[end_pos[row]]]
+        unl[r] = not labelled[p]
+    h = np.empty(0, np.int64)
+    c = np.empty((0, 2))
+    if nc == 0:
+        return cand, first, last, labelled, val, E, U, fe, h, c
+    if ring > 0:
+        unl = _k_near_mask(E, unl, step_px, ring)
+    ns = 0
+    for r in range(R):
+        if unl[r]:
+            ns += 1
+    if ns < 3:
+        return cand, first, last, labelled, val, E, U, fe, h, c
+    srch = np.empty(ns, np.int64)
+    m = 0
+    for r in range(R):
+        if unl[r]:
+            srch[m] = r
+            m += 1
+    part, cs = _k_end_pairs(E, U, ep, first, last, piece, ts, q, sid, trim_px, anchor, fe, srch, reach, sin_min)
+    nh = 0
+    for i in range(ns):
+        if part[i] >= 0:
+            nh += 1
+    if nh < 3:
+        return cand, first, last, labelled, val, E, U, fe, h, c
+    h = np.empty(nh, np.int64)
+    c = np.empty((nh, 2))
+    m = 0
+    for i in range(ns):
+        if part[i] >= 0:
+            h[m] = srch[i]
+            c[m, 0] = cs[i, 0]
+            c[m, 1] = cs[i, 1]
+            m += 1
+    return cand, first, last, labelled, val, E, U, fe, h, c
+
+
+@njit
+def _k_nodes(E, U, fe, h, c, merge_px, reach, lateral, continue_px, x_both, q, fam, x0, y0, cell, gw, gh, start, items, pos_of):
+    """Steps 2–3: nodes (clusters of the crossings at their means), the ends without a crossing of their own
+    associated by position, the X test (`_k_node_ends`, `_k_continues`). Returns the nodes xy (K, 2), each end
+    row's node (−1: none or not an X), the number of ends associated (−1: no association step) and the number
+    of nodes that are no crossing."""
+    R = E.shape[0]
+    nh = h.shape[0]
+    node_of_hit = _k_cluster_sweep(c, merge_px)
+    K = 0
+    for i in range(nh):
+        K = max(K, node_of_hit[i] + 1)
+    sx_ = np.zeros(K)
+    sy_ = np.zeros(K)
+    cnt = np.zeros(K)
+    for i in range(nh):
+        k = node_of_hit[i]
+        cnt[k] += 1.0
+        sx_[k] += c[i, 0]
+        sy_[k] += c[i, 1]
+    xy = np.empty((K, 2))
+    for k in range(K):
+        xy[k, 0] = sx_[k] / cnt[k]
+        xy[k, 1] = sy_[k] / cnt[k]
+    node_end = np.full(R, -1, np.int64)
+    for i in range(nh):
+        node_end[h[i]] = node_of_hit[i]
+    n_assoc = -1
+    if reach > 0:
+        nf = 0
+        for r in range(R):
+            if node_end[r] < 0:
+                nf += 1
+        if nf > 0:
+            free = np.empty(nf, np.int64)
+            m = 0
+            for r in range(R):
+                if node_end[r] < 0:
+                    free[m] = r
+                    m += 1
+            order = np.argsort(xy[:, 0])
+            xs = xy[order, 0].copy()
+            best = _k_nearest_sweep(E, U, free, xy, order, xs, reach, lateral, True)
+            n_assoc = 0
+            for a in range(nf):
+                node_end[free[a]] = best[a]
+                if best[a] >= 0:
+                    n_assoc += 1
+    has, sx, sy, ne, off_line = _k_node_ends(node_end, E, U, fe, xy, lateral)
+    two = np.zeros((K, 2), np.bool_)
+    through = np.zeros((K, 2), np.bool_)
+    n_one = 0
+    for k in range(K):
+        for f in range(2):
+            two[k, f] = ne[k, f] >= 2 and math.hypot(sx[k, f], sy[k, f]) <= ne[k, f] - 1.5
+            through[k, f] = two[k, f]
+            if has[k, f] and not two[k, f]:
+                n_one += 1
+    if continue_px > 0 and n_one > 0:
+        pts = np.empty((n_one, 2))
+        dn = np.empty((n_one, 2))
+        fq = np.empty(n_one, np.int64)
+        kq = np.empty(n_one, np.int64)
+        m = 0
+        for k in range(K):
+            for f in range(2):
+                if has[k, f] and not two[k, f]:
+                    nrm = max(math.hypot(sx[k, f], sy[k, f]), 1e-12)
+                    pts[m, 0] = xy[k, 0]
+                    pts[m, 1] = xy[k, 1]
+                    dn[m, 0] = sx[k, f] / nrm
+                    dn[m, 1] = sy[k, f] / nrm
+                    fq[m] = f + 1
+                    kq[m] = k
+                    m += 1
+        cont = _k_continues(pts, dn, fq, q, fam, continue_px, lateral, x0, y0, cell, gw, gh, start, items, pos_of)
+        for m in range(n_one):
+            through[kq[m], fq[m] - 1] = cont[m]
+    x_node = np.empty(K, np.bool_)
+    n_not = 0
+    for k in range(K):
+        thr = (through[k, 0] and through[k, 1]) if x_both else (through[k, 0] or through[k, 1])
+        x_node[k] = has[k, 0] and has[k, 1] and thr and (two[k, 0] or two[k, 1]) and not off_line[k]
+        if not x_node[k]:
+            n_not += 1
+    for r in range(R):
+        if node_end[r] >= 0 and not x_node[node_end[r]]:
+            node_end[r] = -1
+    return xy, node_end, n_assoc, n_not
+
+
+@njit
+def _k_edge_inputs(node_end, nc, cand, first, fam, sid, xy):
+    """Step 4's inputs to `_extract_kernels.edge_steps`: the pieces with a node at each end (their candidate
+    numbers ed), their nodes, family, midpoint, node-to-node vector and length."""
+    n = 0
+    for i in range(nc):
+        a = node_end[i]
+        b = node_end[nc + i]
+        if a >= 0 and b >= 0 and a != b:
+            n += 1
+    ed = np.empty(n, np.int64)
+    a_j = np.empty(n, np.int64)
+    b_j = np.empty(n, np.int64)
+    fam_s = np.empty(n, np.int64)
+    mid = np.empty((n, 2))
+    dq = np.empty((n, 2))
+    elen = np.empty(n)
+    m = 0
+    for i in range(nc):
+        a = node_end[i]
+        b = node_end[nc + i]
+        if a >= 0 and b >= 0 and a != b:
+            ed[m] = i
+            a_j[m] = a
+            b_j[m] = b
+            fam_s[m] = fam[sid[first[cand[i]]]]
+            dq[m, 0] = xy[b, 0] - xy[a, 0]
+            dq[m, 1] = xy[b, 1] - xy[a, 1]
+            mid[m, 0] = 0.5 * (xy[a, 0] + xy[b, 0])
+            mid[m, 1] = 0.5 * (xy[a, 1] + xy[b, 1])
+            elen[m] = math.hypot(dq[m, 0], dq[m, 1])
+            m += 1
+    return ed, a_j, b_j, fam_s, mid, dq, elen
+
+
+@njit
+def _k_use(n_nodes, edges, eseg, cand, labelled, min_component):
+    """Step 5's choice: the nodes of the components that hold an unlabelled piece's edge and at least
+    min_component nodes; returns them (sub, ascending), their new numbers (renum, −1: not used) and the edges
+    kept (the rows of edges whose first node is used)."""
+    cc = _k_components(n_nodes, edges)
+    nC = 0
+    for k in range(n_nodes):
+        nC = max(nC, cc[k] + 1)
+    want = np.zeros(nC, np.bool_)
+    size = np.zeros(nC, np.int64)
+    for k in range(n_nodes):
+        size[cc[k]] += 1
+    for t in range(edges.shape[0]):
+        if not labelled[cand[eseg[t]]]:
+            want[cc[edges[t, 0]]] = True
+    renum = np.full(n_nodes, -1, np.int64)
+    m = 0
+    for k in range(n_nodes):
+        if want[cc[k]] and size[cc[k]] >= min_component:
+            renum[k] = m
+            m += 1
+    sub = np.empty(m, np.int64)
+    for k in range(n_nodes):
+        if renum[k] >= 0:
+            sub[renum[k]] = k
+    ne_ = 0
+    for t in range(edges.shape[0]):
+        if renum[edges[t, 0]] >= 0:
+            ne_ += 1
+    ek = np.empty(ne_, np.int64)
+    m = 0
+    for t in range(edges.shape[0]):
+        if renum[edges[t, 0]] >= 0:
+            ek[m] = t
+            m += 1
+    return sub, renum, ek
+
+
+@njit
+def _k_anchors(L, comp, node_end, nc, cand, labelled, val, first, fam, sid, qj, jl, xy, merge_px):
+    """Step 6: a node whose label disagrees with a labelled piece ending at it (its family's index) or with a
+    labelled found junction within merge_px (qj, jl: the labelled found junctions) is a conflict; every node of
+    a conflicting node's component is dropped. Returns ok_node (labelled and kept) and the number of components
+    dropped."""
+    K = L.shape[0]
+    ok = np.empty(K, np.bool_)
+    for k in range(K):
+        ok[k] = L[k, 0] != UNLABELLED
+    conflict = np.zeros(K, np.bool_)
+    for r in range(node_end.shape[0]):
+        nd = node_end[r]
+        if nd < 0:
+            continue
+        p = cand[r % nc]
+        if labelled[p] and ok[nd]:
+            f = fam[sid[first[p]]] - 1
+            if L[nd, f] != val[p]:
+                conflict[nd] = True
+    if qj.shape[0] > 0:
+        order = np.argsort(xy[:, 0])
+        xs = xy[order, 0].copy()
+        nn = _k_nearest_sweep(qj, qj, np.arange(qj.shape[0]), xy, order, xs, merge_px, np.inf, False)
+        for a in range(qj.shape[0]):
+            nd = nn[a]
+            if nd >= 0 and ok[nd] and (L[nd, 0] != jl[a, 0] or L[nd, 1] != jl[a, 1]):
+                conflict[nd] = True
+    nC = 1
+    for k in range(K):
+        nC = max(nC, comp[k] + 2)
+    bad = np.zeros(nC, np.bool_)  # comp + 1 (−1 counts as a value, as np.unique counts it)
+    n_bad = 0
+    for k in range(K):
+        if conflict[k] and not bad[comp[k] + 1]:
+            bad[comp[k] + 1] = True
+            n_bad += 1
+    if n_bad:
+        for k in range(K):
+            if bad[comp[k] + 1]:
+                ok[k] = False
+    return ok, n_bad
+
+
+@njit
+def _sign(x):
+    if x > 0.0:
+        return 1.0
+    if x < 0.0:
+        return -1.0
+    return x  # 0 and NaN as np.sign
+
+
+@njit
+def _k_write(ok_node, L, ed, a_j, b_j, fam_s, cand, labelled, first, last, ts, q, sid, xy, trim_px, lateral, move, q_out, index, seed_jid):
+    """Step 7: the unlabelled pieces between two kept nodes that agree on their index take it; their end
+    samples (within trim_px of an end) are moved onto the total-least-squares line through the piece's other
+    samples and its two nodes when within lateral of it (move; q_out in place), the rest of the end samples
+    stay unlabelled. index, seed_jid written in place. Returns pieces, samples labelled, samples moved (−1:
+    no move step)."""
+    ns = 0
+    for t in range(ed.shape[0]):
+        p = cand[ed[t]]
+        f = fam_s[t] - 1
+        if ok_node[a_j[t]] and ok_node[b_j[t]] and not labelled[p] and L[a_j[t], f] == L[b_j[t], f]:
+            ns += 1
+    if ns == 0:
+        return 0, 0, -1
+    sel = np.empty(ns, np.int64)
+    m = 0
+    for t in range(ed.shape[0]):
+        p = cand[ed[t]]
+        f = fam_s[t] - 1
+        if ok_node[a_j[t]] and ok_node[b_j[t]] and not labelled[p] and L[a_j[t], f] == L[b_j[t], f]:
+            sel[m] = t
+            m += 1
+    # per piece: the line the end samples move onto (pa → pb)
+    pa = np.empty((ns, 2))
+    pb = np.empty((ns, 2))
+    for i in range(ns):
+        t = sel[i]
+        p = cand[ed[t]]
+        f0 = first[p]
+        l0 = last[p]
+        na0, na1 = xy[a_j[t], 0], xy[a_j[t], 1]
+        nb0, nb1 = xy[b_j[t], 0], xy[b_j[t], 1]
+        S0 = 0.0
+        S1 = 0.0
+        w = 0.0
+        for j in range(f0, l0 + 1):
+            if min(ts[j] - ts[f0], ts[l0] - ts[j]) >= trim_px:
+                S0 += q[sid[j], 0]
+                S1 += q[sid[j], 1]
+                w += 1.0
+        w += 2.0
+        mx = (S0 + na0 + nb0) / w
+        my = (S1 + na1 + nb1) / w
+        sxx = 0.0
+        syy = 0.0
+        sxy = 0.0
+        for j in range(f0, l0 + 1):
+            if min(ts[j] - ts[f0], ts[l0] - ts[j]) >= trim_px:
+                dxi = q[sid[j], 0] - mx
+                dyi = q[sid[j], 1] - my
+                sxx += dxi * dxi
+                syy += dyi * dyi
+                sxy += dxi * dyi
+        sxx = sxx + (na0 - mx) * (na0 - mx) + (nb0 - mx) * (nb0 - mx)
+        syy = syy + (na1 - my) * (na1 - my) + (nb1 - my) * (nb1 - my)
+        sxy = sxy + (na0 - mx) * (na1 - my) + (nb0 - mx) * (nb1 - my)
+        ang = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+        t0 = np.cos(ang)
+        t1 = np.sin(ang)
+        sg = _sign(t0 * (nb0 - na0) + t1 * (nb1 - na1))
+        t0 *= sg
+        t1 *= sg
+        ua = (na0 - mx) * t0 + (na1 - my) * t1
+        ub = (nb0 - mx) * t0 + (nb1 - my) * t1
+        pa[i, 0] = mx + ua * t0
+        pa[i, 1] = my + ua * t1
+        pb[i, 0] = mx + ub * t0
+        pb[i, 1] = my + ub * t1
+    n_moved = 0
+    n_pieces = 0
+    n_samples = 0
+    for i in range(ns):
+        t = sel[i]
+        p = cand[ed[t]]
+        kk = L[a_j[t], fam_s[t] - 1]
+        f0 = first[p]
+        l0 = last[p]
+        d0 = pb[i, 0] - pa[i, 0]
+        d1 = pb[i, 1] - pa[i, 1]
+        Lab = math.hypot(d0, d1)
+        u0 = d0 / Lab
+        u1 = d1 / Lab
+        got = False
+        for j in range(f0, l0 + 1):
+            s = sid[j]
+            keep = min(ts[j] - ts[f0], ts[l0] - ts[j]) >= trim_px
+            if not keep and move:
+                w0 = q[s, 0] - pa[i, 0]
+                w1 = q[s, 1] - pa[i, 1]
+                along = w0 * u0 + w1 * u1
+                if abs(w0 * u1 - w1 * u0) <= lateral and along > 0 and along < Lab:
+                    q_out[s, 0] = pa[i, 0] + along * u0
+                    q_out[s, 1] = pa[i, 1] + along * u1
+                    keep = True
+                    n_moved += 1
+            if keep:
+                index[s] = kk
+                seed_jid[s] = -1
+                n_samples += 1
+                got = True
+        if got:
+            n_pieces += 1
+    return n_pieces, n_samples, (n_moved if move else -1)
+
+
+def label_piece_junctions(
+    q: np.ndarray,
+    fam: np.ndarray,
+    sid: np.ndarray,
+    piece: np.ndarray,
+    ts: np.ndarray,
+    tangent: np.ndarray,
+    index: np.ndarray,
+    seed_jid: np.ndarray,
+    *,
+    model: RigModel,
+    depth_range_mm: tuple[float, float],
+    radius_px: float,
+    grid: tuple,
+    q_junction: np.ndarray,
+    junction_labels: np.ndarray,
+    trim_px: float = 0.0,
+    merge_px: float | None = None,
+    min_samples: int = 2,
+    anchor: int = 3,
+    reach_px: float = 0.0,
+    lateral_px: float = 1.0,
+    one_sided: bool = False,
+    x_both: bool = True,
+    move_ends: bool = True,
+    fit_interior: bool = True,
+    ring_cells: int = 1,
+    continue_px: float | None = None,
+    junction_nodes: bool = False,
+    end_pairs: bool = True,
+    q_out: np.ndarray | None = None,
+    label_options=None,
+    debug: dict | None = None,
+) -> dict:
+    """Label unlabelled pieces from junctions built at the crossings of pieces (module doc).
+
+    q (P, 2) camera px, fam (P,) 1/2 of all samples; the traces as `labelling.label_samples` builds them: sid
+    (n,) sample ids by piece and position, piece (n,) non-decreasing piece ids, ts (n,) position along the piece
+    (px), tangent (n, 2) unit. index (P,) float (NaN: unlabelled), seed_jid (P,) int and q_out (P, 2) (the
+    positions to triangulate; None: the end samples are not moved) are written in place (seed_jid −1: no
+    found junction). radius_px: how far from a piece's end the crossing is searched when reach_px is 0; grid:
+    the frame's bucket grid of the samples (`labelling._sample_grid`, cells ≥ radius_px). q_junction (M, 2),
+    junction_labels (M, 2): the found junctions and their labels (anchors). trim_px: the pull of a crossing
+    along a piece (`cross_trim_sigma`·σ). merge_px: crossing estimates this close are one node (default 0.25
+    junction steps). min_samples: shorter pieces give no crossing estimates and no edges. anchor: the end
+    lines' chord length in samples. reach_px: how far ahead of a piece's end its node may lie (half a
+    crossing's gap; 0: only the end's own estimate); lateral_px: how far off the end's line (camera px).
+    continue_px: how far past a node a one-sided family's line must show a trace sample (default reach_px).
+    ring_cells: the labelled pieces whose ends are searched too lie within this many junction steps of an
+    unlabelled piece's end. label_options: `labelling.LabelOptions` (default: min_component 3; the depth range
+    is set from depth_range_mm).
+
+    The method's options (the defaults) run compiled (`_k_front`, `_k_nodes`, `_k_edge_inputs`, `_k_use`,
+    `_k_anchors`, `_k_write`: decision 0092, "Time"); the measurement switches (one_sided, x_both False is
+    compiled too, move_ends False, fit_interior False, junction_nodes, end_pairs False) run
+    `_label_piece_junctions_reference`, whose outputs the compiled path reproduces bit for bit. debug: filled
+    with the nodes' positions `xy` and labels `labels` (UNLABELLED where none).
+    Returns counts: nodes, edges, nodes used and labelled, ends associated by position, nodes that are no
+    crossing, components rejected by an anchor, the sub-labeller's left-out reasons, pieces and samples
+    labelled, end samples moved."""
+    if one_sided or not move_ends or not fit_interior or junction_nodes or not end_pairs:
+        return _label_piece_junctions_reference(
+            q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm, radius_px=radius_px, grid=grid,
+            q_junction=q_junction, junction_labels=junction_labels, trim_px=trim_px, merge_px=merge_px, min_samples=min_samples,
+            anchor=anchor, reach_px=reach_px, lateral_px=lateral_px, one_sided=one_sided, x_both=x_both, move_ends=move_ends,
+            fit_interior=fit_interior, ring_cells=ring_cells, continue_px=continue_px, junction_nodes=junction_nodes, end_pairs=end_pairs,
+            q_out=q_out, label_options=label_options, debug=debug)
+    from reconstruction.labelling import LabelOptions, label_epipolar
+
+    stats = {"nodes": 0, "edges": 0, "nodes_labelled": 0, "components_anchor_conflict": 0, "pieces": 0, "samples": 0}
+    n = len(piece)
+    if n == 0:
+        return stats
+    n_p = int(piece[-1]) + 1
+    if merge_px is None:
+        merge_px = 0.25 * model.junction_step_cam_px
+    # 1. crossings at the ends of unlabelled pieces and of the labelled ones around them
+    cand, first, last, labelled, val, E, U, fe, h, c = _k_front(
+        q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, int(anchor), int(min_samples), float(model.junction_step_cam_px),
+        int(ring_cells), float(trim_px), float(reach_px if reach_px > 0 else radius_px), _SIN_MIN_CROSSING)
+    if len(h) == 0:
+        return stats
+    nc = len(cand)
+    # 2–3. nodes, ends associated by position, only X's
+    if continue_px is None:
+        continue_px = reach_px
+    xy, node_end, n_assoc, n_not = _k_nodes(E, U, fe, h, c, float(merge_px), float(reach_px), float(lateral_px), float(continue_px),
+                                            bool(x_both), q, fam, *grid)
+    n_nodes = len(xy)
+    stats["nodes"] = n_nodes
+    if n_assoc >= 0:
+        stats["ends_associated"] = int(n_assoc)
+    stats["nodes_not_crossing"] = int(n_not)
+    # 4. edges: pieces with a node at both ends
+    ed, a_j, b_j, fam_s, mid, dq, elen = _k_edge_inputs(node_end, nc, cand, first, fam, sid, xy)
+    if len(ed) == 0:
+        return stats
+    edges, _, delta, eseg, _ = _ek.edge_steps(ed, a_j, b_j, fam_s, mid, dq, elen, model.J_proj_cam, float(model.cell_px),
+                                             float(model.pattern.n1), float(model.pattern.n2), n_nodes)
+    stats["edges"] = int(len(edges))
+    if len(edges) == 0:
+        return stats
+    # 5. the default labeller on the components that hold an unlabelled piece between two of their nodes
+    lo = label_options if label_options is not None else LabelOptions(min_component=3)
+    lo = LabelOptions(**{**lo.__dict__, "depth_min_mm": float(depth_range_mm[0]), "depth_max_mm": float(depth_range_mm[1])})
+    edges = np.ascontiguousarray(edges, np.int64)
+    sub, renum, ek = _k_use(n_nodes, edges, np.ascontiguousarray(eseg, np.int64), cand, labelled, int(lo.min_component))
+    stats["nodes_used"] = int(len(sub))
+    if len(sub) == 0:
+        return stats
+    obs = SimpleNamespace(q_junction=xy[sub], edges=renum[edges[ek]], edge_delta=delta[ek])
+    lab_sub = label_epipolar(obs, model, model.cam_normalised(xy[sub]), options=lo)
+    L = np.full((n_nodes, 2), UNLABELLED, np.int64)
+    L[sub] = lab_sub.labels
+    comp = np.full(n_nodes, -1, np.int64)
+    comp[sub] = lab_sub.component
+    stats["left_out"] = {k: v for k, v in lab_sub.stats["junctions_left_out"].items() if v}
+    if not (L[:, 0] != UNLABELLED).any():
+        return stats
+    # 6. anchors: labelled pieces ending at a node, labelled found junctions nearby
+    jl = np.asarray(junction_labels, np.int64).reshape(-1, 2)
+    lj = np.flatnonzero(jl[:, 0] != UNLABELLED)
+    qj = np.ascontiguousarray(np.asarray(q_junction, np.float64).reshape(-1, 2)[lj])
+    ok_node, n_bad = _k_anchors(L, comp, node_end, nc, cand, labelled, val, first, fam, sid, qj, np.ascontiguousarray(jl[lj]), xy,
+                                float(merge_px))
+    if n_bad:
+        stats["components_anchor_conflict"] = int(n_bad)
+    stats["nodes_labelled"] = int(ok_node.sum())
+    if debug is not None:
+        debug.update(xy=xy, labels=np.where(ok_node[:, None], L, UNLABELLED))
+    # 7. the pieces between two labelled nodes that agree on their index
+    move = q_out is not None
+    n_pc, n_s, n_mv = _k_write(ok_node, L, ed, a_j, b_j, fam_s, cand, labelled, first, last, ts, q, sid, xy, float(trim_px),
+                               float(lateral_px), move, q_out if move else np.empty((0, 2)), index, seed_jid)
+    if n_mv >= 0:
+        stats["samples_moved"] = int(n_mv)
+    stats["pieces"] = int(n_pc)
+    stats["samples"] = int(n_s)
     return stats
