@@ -320,6 +320,88 @@ def _k_end_pairs(E, U, pos, first, last, piece, ts, q, sid, trim_px, anchor, fe,
 
 
 @njit
+def _k_end_pairs_f(E, U, pos, first, last, piece, ts, q, sid, trim_px, anchor, fe, rows, radius, sin_min):
+    """`_k_end_pairs` with one bucket grid per family (the same candidates in the same order, half the
+    look-ups)."""
+    R = E.shape[0]
+    n = rows.shape[0]
+    part = np.full(n, -1, np.int64)
+    c = np.full((n, 2), np.nan)
+    if R == 0:
+        return part, c
+    P = np.empty((R, 2))
+    D = np.empty((R, 2))
+    done = np.zeros(R, np.bool_)
+    cs = radius
+    x0 = E[:, 0].min()
+    y0 = E[:, 1].min()
+    gw = int((E[:, 0].max() - x0) / cs) + 1
+    gh = int((E[:, 1].max() - y0) / cs) + 1
+    G = gw * gh
+    start = np.zeros(2 * G + 1, np.int64)
+    cellr = np.empty(R, np.int64)
+    for r in range(R):
+        cellr[r] = (fe[r] - 1) * G + int((E[r, 1] - y0) / cs) * gw + int((E[r, 0] - x0) / cs)
+        start[cellr[r] + 1] += 1
+    for b in range(2 * G):
+        start[b + 1] += start[b]
+    fill = start[:-1].copy()
+    items = np.empty(R, np.int64)
+    for r in range(R):
+        items[fill[cellr[r]]] = r
+        fill[cellr[r]] += 1
+    r2 = radius * radius
+    for i in range(n):
+        r = rows[i]
+        cx = int((E[r, 0] - x0) / cs)
+        cy = int((E[r, 1] - y0) / cs)
+        bd = np.inf
+        g0 = (2 - fe[r]) * G  # the other family's grid
+        for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
+            for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
+                b = g0 + yy * gw + xx
+                for t in range(start[b], start[b + 1]):
+                    o = items[t]
+                    ddx = E[o, 0] - E[r, 0]
+                    ddy = E[o, 1] - E[r, 1]
+                    if ddx * ddx + ddy * ddy >= r2:
+                        continue
+                    for z in (r, o):
+                        if not done[z]:
+                            ok, ax, ay, ux, uy = _k_end_line(pos[z], first, last, piece, ts, q, sid, trim_px, anchor)
+                            if ok:
+                                P[z, 0] = ax
+                                P[z, 1] = ay
+                                D[z, 0] = ux
+                                D[z, 1] = uy
+                            else:
+                                P[z, 0] = E[z, 0]
+                                P[z, 1] = E[z, 1]
+                                D[z, 0] = U[z, 0]
+                                D[z, 1] = U[z, 1]
+                            done[z] = True
+                    den = D[r, 0] * D[o, 1] - D[r, 1] * D[o, 0]
+                    if abs(den) < sin_min:
+                        continue
+                    wx = P[o, 0] - P[r, 0]
+                    wy = P[o, 1] - P[r, 1]
+                    tr = (wx * D[o, 1] - wy * D[o, 0]) / den
+                    X = P[r, 0] + tr * D[r, 0]
+                    Y = P[r, 1] + tr * D[r, 1]
+                    ar = (X - E[r, 0]) * D[r, 0] + (Y - E[r, 1]) * D[r, 1]
+                    ao = (X - E[o, 0]) * D[o, 0] + (Y - E[o, 1]) * D[o, 1]
+                    if ar < -1.0 or ar > radius or ao < -1.0 or ao > radius:
+                        continue
+                    d2 = (X - E[r, 0]) ** 2 + (Y - E[r, 1]) ** 2
+                    if d2 < bd:
+                        bd = d2
+                        part[i] = o
+                        c[i, 0] = X
+                        c[i, 1] = Y
+    return part, c
+
+
+@njit
 def _k_associate(E, U, rows, xy, reach, lateral):
     """For the ends rows (position E[r], outward unit direction U[r]): the nearest node of xy (K, 2) within
     reach of the end, not behind it (along ≥ −1 px) and within lateral of its end line; −1 where none."""
@@ -751,6 +833,59 @@ def _k_nearest_sweep(E, U, rows, xy, order, xs, reach, lateral, use_dir):
 
 
 @njit
+def _k_nearest_grid(E, U, rows, xy, radius, cell, lateral, use_dir):
+    """`_k_associate` with a bucket grid of cell ≥ radius over the nodes xy: for each end rows[a] the nearest
+    node closer than radius, not behind the end (along ≥ −1 px) and within lateral of its line (use_dir False:
+    the nearest closer than radius). −1 where none."""
+    K = xy.shape[0]
+    out = np.full(rows.shape[0], -1, np.int64)
+    if K == 0:
+        return out
+    cs = cell
+    x0 = xy[:, 0].min() - cs
+    y0 = xy[:, 1].min() - cs
+    gw = int((xy[:, 0].max() - x0) / cs) + 2
+    gh = int((xy[:, 1].max() - y0) / cs) + 2
+    start = np.zeros(gw * gh + 1, np.int64)
+    cellk = np.empty(K, np.int64)
+    for k in range(K):
+        cellk[k] = int((xy[k, 1] - y0) / cs) * gw + int((xy[k, 0] - x0) / cs)
+        start[cellk[k] + 1] += 1
+    for b in range(gw * gh):
+        start[b + 1] += start[b]
+    fill = start[:-1].copy()
+    items = np.empty(K, np.int64)
+    for k in range(K):
+        items[fill[cellk[k]]] = k
+        fill[cellk[k]] += 1
+    r2 = radius * radius
+    for a in range(rows.shape[0]):
+        r = rows[a]
+        ex = E[r, 0]
+        ey = E[r, 1]
+        cx = int(math.floor((ex - x0) / cs))
+        cy = int(math.floor((ey - y0) / cs))
+        best = -1
+        bd = np.inf
+        for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
+            for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
+                b = yy * gw + xx
+                for t in range(start[b], start[b + 1]):
+                    k = items[t]
+                    wx = xy[k, 0] - ex
+                    wy = xy[k, 1] - ey
+                    d2 = wx * wx + wy * wy
+                    if d2 >= r2 or d2 >= bd:
+                        continue
+                    if use_dir and (wx * U[r, 0] + wy * U[r, 1] < -1.0 or abs(wx * U[r, 1] - wy * U[r, 0]) > lateral):
+                        continue
+                    bd = d2
+                    best = k
+        out[a] = best
+    return out
+
+
+@njit
 def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_samples, step_px, ring, trim_px, reach, sin_min):
     """Steps 0–1: the pieces' ends (`piece_ends`), the candidate pieces (≥ min_samples samples), their end rows
     (rows 0..nc−1 the first ends, nc..2nc−1 the last), the ends searched (unlabelled pieces' and, ring > 0, the
@@ -804,7 +939,7 @@ def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_
         if unl[r]:
             srch[m] = r
             m += 1
-    part, cs = _k_end_pairs(E, U, ep, first, last, piece, ts, q, sid, trim_px, anchor, fe, srch, reach, sin_min)
+    part, cs = _k_end_pairs_f(E, U, ep, first, last, piece, ts, q, sid, trim_px, anchor, fe, srch, reach, sin_min)
     nh = 0
     for i in range(ns):
         if part[i] >= 0:
@@ -863,9 +998,7 @@ def _k_nodes(E, U, fe, h, c, merge_px, reach, lateral, continue_px, x_both, q, f
                 if node_end[r] < 0:
                     free[m] = r
                     m += 1
-            order = np.argsort(xy[:, 0])
-            xs = xy[order, 0].copy()
-            best = _k_nearest_sweep(E, U, free, xy, order, xs, reach, lateral, True)
+            best = _k_nearest_grid(E, U, free, xy, reach, reach, lateral, True)
             n_assoc = 0
             for a in range(nf):
                 node_end[free[a]] = best[a]
@@ -1009,9 +1142,7 @@ def _k_anchors(L, comp, node_end, nc, cand, labelled, val, first, fam, sid, qj, 
             if L[nd, f] != val[p]:
                 conflict[nd] = True
     if qj.shape[0] > 0:
-        order = np.argsort(xy[:, 0])
-        xs = xy[order, 0].copy()
-        nn = _k_nearest_sweep(qj, qj, np.arange(qj.shape[0]), xy, order, xs, merge_px, np.inf, False)
+        nn = _k_nearest_grid(qj, qj, np.arange(qj.shape[0]), xy, merge_px, 2.0 * merge_px, np.inf, False)
         for a in range(qj.shape[0]):
             nd = nn[a]
             if nd >= 0 and ok[nd] and (L[nd, 0] != jl[a, 0] or L[nd, 1] != jl[a, 1]):
