@@ -892,9 +892,23 @@ def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_
     ends within ring junction steps of one) and their crossings (`_k_end_pairs`). Returns cand, first, last,
     labelled, val, E, U, fe, the hit rows h and their crossings c (h empty when fewer than 3 ends are searched
     or hit: nothing to do)."""
-    e, u, end_pos, labelled, val, _ = piece_ends(q, sid, piece, tangent, index, seed_jid, n_p, anchor)
-    first = end_pos[:n_p]
-    last = end_pos[n_p:]
+    # the pieces' first and last trace positions; labelled and index from the first labelled sample (as
+    # `piece_ends`, without reading every sample of the labelled pieces)
+    first = np.full(n_p, -1, np.int64)
+    last = np.full(n_p, -1, np.int64)
+    for k in range(piece.shape[0]):
+        p = piece[k]
+        if first[p] < 0:
+            first[p] = k
+        last[p] = k
+    labelled = np.zeros(n_p, np.bool_)
+    val = np.full(n_p, np.nan)
+    for p in range(n_p):
+        for k in range(first[p], last[p] + 1):
+            if math.isfinite(index[sid[k]]):
+                labelled[p] = True
+                val[p] = index[sid[k]]
+                break
     nc = 0
     for p in range(n_p):
         if last[p] - first[p] + 1 >= min_samples:
@@ -912,14 +926,30 @@ def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_
     ep = np.empty(R, np.int64)
     unl = np.empty(R, np.bool_)
     for r in range(R):
+        # the end's sample and outward direction: the chord from the sample `anchor` places inside, or the
+        # trace tangent on short chords (`piece_ends`)
         p = cand[r % nc]
-        row = p if r < nc else p + n_p
-        E[r, 0] = e[row, 0]
-        E[r, 1] = e[row, 1]
-        U[r, 0] = u[row, 0]
-        U[r, 1] = u[row, 1]
-        ep[r] = end_pos[row]
-        fe[r] = fam[sid[end_pos[row]]]
+        if r < nc:
+            k = first[p]
+            a = min(k + anchor, last[p])
+            sgn = -1.0
+        else:
+            k = last[p]
+            a = max(k - anchor, first[p])
+            sgn = 1.0
+        E[r, 0] = q[sid[k], 0]
+        E[r, 1] = q[sid[k], 1]
+        d0 = E[r, 0] - q[sid[a], 0]
+        d1 = E[r, 1] - q[sid[a], 1]
+        Ln = math.sqrt(d0 * d0 + d1 * d1)
+        if Ln >= 1.5:
+            U[r, 0] = d0 / Ln
+            U[r, 1] = d1 / Ln
+        else:
+            U[r, 0] = sgn * tangent[k, 0]
+            U[r, 1] = sgn * tangent[k, 1]
+        ep[r] = k
+        fe[r] = fam[sid[k]]
         unl[r] = not labelled[p]
     h = np.empty(0, np.int64)
     c = np.empty((0, 2))
