@@ -320,9 +320,9 @@ def _k_end_pairs(E, U, pos, first, last, piece, ts, q, sid, trim_px, anchor, fe,
 
 
 @njit
-def _k_end_pairs_f(E, U, pos, first, last, piece, ts, q, sid, trim_px, anchor, fe, rows, radius, sin_min):
+def _k_end_pairs_f(E, U, pos, first, last, piece, ts, qt, trim_px, anchor, fe, rows, radius, sin_min):
     """`_k_end_pairs` with one bucket grid per family (the same candidates in the same order, half the
-    look-ups)."""
+    look-ups) and the end lines on the trace-ordered positions qt (P×… → n, 2: qt[j] = q[sid[j]])."""
     R = E.shape[0]
     n = rows.shape[0]
     part = np.full(n, -1, np.int64)
@@ -366,15 +366,38 @@ def _k_end_pairs_f(E, U, pos, first, last, piece, ts, q, sid, trim_px, anchor, f
                     ddy = E[o, 1] - E[r, 1]
                     if ddx * ddx + ddy * ddy >= r2:
                         continue
-                    for z in (r, o):
+                    for zz in range(2):
+                        z = r if zz == 0 else o
                         if not done[z]:
-                            ok, ax, ay, ux, uy = _k_end_line(pos[z], first, last, piece, ts, q, sid, trim_px, anchor)
-                            if ok:
-                                P[z, 0] = ax
-                                P[z, 1] = ay
-                                D[z, 0] = ux
-                                D[z, 1] = uy
-                            else:
+                            # `piece_seeds._k_end_line` written out (a call per end costs more than the line),
+                            # on the trace-ordered positions qt (qt[j] = q[sid[j]])
+                            ok = False
+                            p_end = pos[z]
+                            pz = piece[p_end]
+                            step = 1 if p_end == first[pz] else -1
+                            stop = last[pz] if step == 1 else first[pz]
+                            t0 = ts[p_end]
+                            j = p_end
+                            while j != stop and abs(ts[j] - t0) < trim_px:
+                                j += step
+                            if abs(ts[j] - t0) >= trim_px:
+                                j2 = j
+                                for _ in range(anchor):
+                                    if j2 == stop:
+                                        break
+                                    j2 += step
+                                ax = qt[j, 0]
+                                ay = qt[j, 1]
+                                dx = ax - qt[j2, 0]
+                                dy = ay - qt[j2, 1]
+                                Ln = math.hypot(dx, dy)
+                                if Ln >= 1.5:
+                                    ok = True
+                                    P[z, 0] = ax
+                                    P[z, 1] = ay
+                                    D[z, 0] = dx / Ln
+                                    D[z, 1] = dy / Ln
+                            if not ok:
                                 P[z, 0] = E[z, 0]
                                 P[z, 1] = E[z, 1]
                                 D[z, 0] = U[z, 0]
@@ -969,7 +992,11 @@ def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_
         if unl[r]:
             srch[m] = r
             m += 1
-    part, cs = _k_end_pairs_f(E, U, ep, first, last, piece, ts, q, sid, trim_px, anchor, fe, srch, reach, sin_min)
+    qt = np.empty((sid.shape[0], 2))
+    for j in range(sid.shape[0]):
+        qt[j, 0] = q[sid[j], 0]
+        qt[j, 1] = q[sid[j], 1]
+    part, cs = _k_end_pairs_f(E, U, ep, first, last, piece, ts, qt, trim_px, anchor, fe, srch, reach, sin_min)
     nh = 0
     for i in range(ns):
         if part[i] >= 0:
