@@ -909,6 +909,105 @@ def _k_nearest_grid(E, U, rows, xy, radius, cell, lateral, use_dir):
 
 
 @njit
+def _k_cluster_hash(c, radius):
+    """`_k_cluster` on a hashed bucket grid (cells radius wide, a table of ~2n chains instead of an array over
+    the frame's cells, which are a few px wide): the same clusters and numbering."""
+    n = c.shape[0]
+    parent = np.arange(n)
+    if n == 0:
+        return parent
+    x0 = c[:, 0].min()
+    y0 = c[:, 1].min()
+    size = 1
+    while size < 2 * n:
+        size *= 2
+    mask = size - 1
+    head = np.full(size, -1, np.int64)
+    nxt = np.empty(n, np.int64)
+    cx = np.empty(n, np.int64)
+    cy = np.empty(n, np.int64)
+    for i in range(n):
+        cx[i] = int((c[i, 0] - x0) / radius)
+        cy[i] = int((c[i, 1] - y0) / radius)
+        hsh = (cx[i] * 73856093 + cy[i] * 19349663) & mask
+        nxt[i] = head[hsh]
+        head[hsh] = i
+    r2 = radius * radius
+    for i in range(n):
+        for yy in range(cy[i] - 1, cy[i] + 2):
+            for xx in range(cx[i] - 1, cx[i] + 2):
+                j = head[(xx * 73856093 + yy * 19349663) & mask]
+                while j >= 0:
+                    if j > i and cx[j] == xx and cy[j] == yy:
+                        dx = c[j, 0] - c[i, 0]
+                        dy = c[j, 1] - c[i, 1]
+                        if dx * dx + dy * dy < r2:
+                            a = i
+                            while parent[a] != a:
+                                parent[a] = parent[parent[a]]
+                                a = parent[a]
+                            bb = j
+                            while parent[bb] != bb:
+                                parent[bb] = parent[parent[bb]]
+                                bb = parent[bb]
+                            if a != bb:
+                                parent[max(a, bb)] = min(a, bb)
+                    j = nxt[j]
+    return _k_number(parent)
+
+
+@njit
+def _k_assoc_by_node(E, U, node_end, xy, reach, lateral):
+    """`_k_associate` of every end without a node (node_end −1) turned around: each node looks for the ends
+    within reach around it (a bucket grid of the ends, cells reach wide), an end keeps the nearest node ahead
+    of it (along ≥ −1 px, within lateral of its line). −1 where none."""
+    R = E.shape[0]
+    K = xy.shape[0]
+    best = np.full(R, -1, np.int64)
+    if R == 0 or K == 0:
+        return best
+    bd = np.full(R, np.inf)
+    cs = reach
+    x0 = E[:, 0].min()
+    y0 = E[:, 1].min()
+    gw = int((E[:, 0].max() - x0) / cs) + 1
+    gh = int((E[:, 1].max() - y0) / cs) + 1
+    start = np.zeros(gw * gh + 1, np.int64)
+    cellr = np.full(R, -1, np.int64)
+    for r in range(R):
+        if node_end[r] < 0:
+            cellr[r] = int((E[r, 1] - y0) / cs) * gw + int((E[r, 0] - x0) / cs)
+            start[cellr[r] + 1] += 1
+    for b in range(gw * gh):
+        start[b + 1] += start[b]
+    fill = start[:-1].copy()
+    items = np.empty(R, np.int64)
+    for r in range(R):
+        if cellr[r] >= 0:
+            items[fill[cellr[r]]] = r
+            fill[cellr[r]] += 1
+    r2 = reach * reach
+    for k in range(K):
+        cx = int(math.floor((xy[k, 0] - x0) / cs))
+        cy = int(math.floor((xy[k, 1] - y0) / cs))
+        for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
+            for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
+                b = yy * gw + xx
+                for t in range(start[b], start[b + 1]):
+                    r = items[t]
+                    wx = xy[k, 0] - E[r, 0]
+                    wy = xy[k, 1] - E[r, 1]
+                    d2 = wx * wx + wy * wy
+                    if d2 >= r2 or d2 >= bd[r]:
+                        continue
+                    if wx * U[r, 0] + wy * U[r, 1] < -1.0 or abs(wx * U[r, 1] - wy * U[r, 0]) > lateral:
+                        continue
+                    bd[r] = d2
+                    best[r] = k
+    return best
+
+
+@njit
 def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_samples, step_px, ring, trim_px, reach, sin_min):
     """Steps 0–1: the pieces' ends (`piece_ends`), the candidate pieces (≥ min_samples samples), their end rows
     (rows 0..nc−1 the first ends, nc..2nc−1 the last), the ends searched (unlabelled pieces' and, ring > 0, the
@@ -1023,7 +1122,7 @@ def _k_nodes(E, U, fe, h, c, merge_px, reach, lateral, continue_px, x_both, q, f
     of nodes that are no crossing."""
     R = E.shape[0]
     nh = h.shape[0]
-    node_of_hit = _k_cluster_sweep(c, merge_px)
+    node_of_hit = _k_cluster_hash(c, merge_px)
     K = 0
     for i in range(nh):
         K = max(K, node_of_hit[i] + 1)
@@ -1044,23 +1143,17 @@ def _k_nodes(E, U, fe, h, c, merge_px, reach, lateral, continue_px, x_both, q, f
         node_end[h[i]] = node_of_hit[i]
     n_assoc = -1
     if reach > 0:
-        nf = 0
+        best = _k_assoc_by_node(E, U, node_end, xy, reach, lateral)
+        n_free = 0
+        n_assoc = 0
         for r in range(R):
             if node_end[r] < 0:
-                nf += 1
-        if nf > 0:
-            free = np.empty(nf, np.int64)
-            m = 0
-            for r in range(R):
-                if node_end[r] < 0:
-                    free[m] = r
-                    m += 1
-            best = _k_nearest_grid(E, U, free, xy, reach, reach, lateral, True)
-            n_assoc = 0
-            for a in range(nf):
-                node_end[free[a]] = best[a]
-                if best[a] >= 0:
+                n_free += 1
+                node_end[r] = best[r]
+                if best[r] >= 0:
                     n_assoc += 1
+        if n_free == 0:
+            n_assoc = -1
     has, sx, sy, ne, off_line = _k_node_ends(node_end, E, U, fe, xy, lateral)
     two = np.zeros((K, 2), np.bool_)
     through = np.zeros((K, 2), np.bool_)
