@@ -796,66 +796,6 @@ def _label_piece_junctions_reference(
 
 
 @njit
-def _k_cluster_sweep(c, radius):
-    """`_k_cluster` by a sweep along x (points sorted by x, each compared with those less than radius to its
-    right): the same clusters and numbering (union–find, ids by lowest member) without a bucket grid over the
-    frame (the estimates are ~1500 points over the whole image, the grid's cells a few px wide)."""
-    n = c.shape[0]
-    parent = np.arange(n)
-    if n == 0:
-        return parent
-    order = np.argsort(c[:, 0])
-    r2 = radius * radius
-    for ii in range(n):
-        i = order[ii]
-        for jj in range(ii + 1, n):
-            j = order[jj]
-            if c[j, 0] - c[i, 0] >= radius:
-                break
-            dx = c[j, 0] - c[i, 0]
-            dy = c[j, 1] - c[i, 1]
-            if dx * dx + dy * dy < r2:
-                a = _find(parent, i)
-                bb = _find(parent, j)
-                if a != bb:
-                    parent[max(a, bb)] = min(a, bb)
-    return _k_number(parent)
-
-
-@njit
-def _k_nearest_sweep(E, U, rows, xy, order, xs, reach, lateral, use_dir):
-    """`_k_associate` over nodes sorted by x (order, xs = xy[order, 0]): for each end rows[a], the nearest node
-    closer than reach, not behind the end (along ≥ −1 px) and within lateral of its line (use_dir False: the
-    nearest closer than reach). −1 where none."""
-    out = np.full(rows.shape[0], -1, np.int64)
-    K = xs.shape[0]
-    if K == 0:
-        return out
-    r2 = reach * reach
-    for a in range(rows.shape[0]):
-        r = rows[a]
-        ex = E[r, 0]
-        ey = E[r, 1]
-        t = np.searchsorted(xs, ex - reach)
-        bd = np.inf
-        best = -1
-        while t < K and xs[t] <= ex + reach:
-            k = order[t]
-            t += 1
-            wx = xy[k, 0] - ex
-            wy = xy[k, 1] - ey
-            d2 = wx * wx + wy * wy
-            if d2 >= r2 or d2 > bd or (d2 == bd and k > best):
-                continue
-            if use_dir and (wx * U[r, 0] + wy * U[r, 1] < -1.0 or abs(wx * U[r, 1] - wy * U[r, 0]) > lateral):
-                continue
-            bd = d2
-            best = k
-        out[a] = best
-    return out
-
-
-@njit
 def _k_nearest_grid(E, U, rows, xy, radius, cell, lateral, use_dir):
     """`_k_associate` with a bucket grid of cell ≥ radius over the nodes xy: for each end rows[a] the nearest
     node closer than radius, not behind the end (along ≥ −1 px) and within lateral of its line (use_dir False:
@@ -1323,20 +1263,16 @@ def _sign(x):
 
 
 @njit
-def _k_write(ok_node, L, ed, a_j, b_j, fam_s, cand, labelled, first, last, ts, q, sid, xy, trim_px, lateral, move, q_out, index, seed_jid):
-    """Step 7: the unlabelled pieces between two kept nodes that agree on their index take it; their end
-    samples (within trim_px of an end) are moved onto the total-least-squares line through the piece's other
-    samples and its two nodes when within lateral of it (move; q_out in place), the rest of the end samples
-    stay unlabelled. index, seed_jid written in place. Returns pieces, samples labelled, samples moved (−1:
-    no move step)."""
+def _k_select(ok_node, L, ed, a_j, b_j, fam_s, cand, labelled, first, last, ts, q, sid, xy, trim_px):
+    """Step 7's pieces: the unlabelled pieces between two kept nodes that agree on their index (their edge
+    rows sel), and per piece the sums of the total-least-squares line through its samples beyond trim_px from
+    its ends and its two nodes: mean (mx, my), sxx, syy, sxy."""
     ns = 0
     for t in range(ed.shape[0]):
         p = cand[ed[t]]
         f = fam_s[t] - 1
         if ok_node[a_j[t]] and ok_node[b_j[t]] and not labelled[p] and L[a_j[t], f] == L[b_j[t], f]:
             ns += 1
-    if ns == 0:
-        return 0, 0, -1
     sel = np.empty(ns, np.int64)
     m = 0
     for t in range(ed.shape[0]):
@@ -1345,9 +1281,7 @@ def _k_write(ok_node, L, ed, a_j, b_j, fam_s, cand, labelled, first, last, ts, q
         if ok_node[a_j[t]] and ok_node[b_j[t]] and not labelled[p] and L[a_j[t], f] == L[b_j[t], f]:
             sel[m] = t
             m += 1
-    # per piece: the line the end samples move onto (pa → pb)
-    pa = np.empty((ns, 2))
-    pb = np.empty((ns, 2))
+    mom = np.empty((ns, 5))
     for i in range(ns):
         t = sel[i]
         p = cand[ed[t]]
@@ -1376,21 +1310,31 @@ def _k_write(ok_node, L, ed, a_j, b_j, fam_s, cand, labelled, first, last, ts, q
                 sxx += dxi * dxi
                 syy += dyi * dyi
                 sxy += dxi * dyi
-        sxx = sxx + (na0 - mx) * (na0 - mx) + (nb0 - mx) * (nb0 - mx)
-        syy = syy + (na1 - my) * (na1 - my) + (nb1 - my) * (nb1 - my)
-        sxy = sxy + (na0 - mx) * (na1 - my) + (nb0 - mx) * (nb1 - my)
-        ang = 0.5 * np.arctan2(2 * sxy, sxx - syy)
-        t0 = np.cos(ang)
-        t1 = np.sin(ang)
-        sg = _sign(t0 * (nb0 - na0) + t1 * (nb1 - na1))
-        t0 *= sg
-        t1 *= sg
-        ua = (na0 - mx) * t0 + (na1 - my) * t1
-        ub = (nb0 - mx) * t0 + (nb1 - my) * t1
-        pa[i, 0] = mx + ua * t0
-        pa[i, 1] = my + ua * t1
-        pb[i, 0] = mx + ub * t0
-        pb[i, 1] = my + ub * t1
+        mom[i, 0] = mx
+        mom[i, 1] = my
+        mom[i, 2] = sxx + (na0 - mx) * (na0 - mx) + (nb0 - mx) * (nb0 - mx)
+        mom[i, 3] = syy + (na1 - my) * (na1 - my) + (nb1 - my) * (nb1 - my)
+        mom[i, 4] = sxy + (na0 - mx) * (na1 - my) + (nb0 - mx) * (nb1 - my)
+    return sel, mom
+
+
+@njit
+def _sign(x):
+    if x > 0.0:
+        return 1.0
+    if x < 0.0:
+        return -1.0
+    return x  # 0 and NaN as np.sign
+
+
+@njit
+def _k_write(sel, mom, tdir, L, ed, a_j, b_j, fam_s, cand, first, last, ts, q, sid, xy, trim_px, lateral, move, q_out, index, seed_jid):
+    """Step 7's writes: the selected pieces (`_k_select`) take their nodes' index; their end samples (within
+    trim_px of an end) are moved onto the piece's line (through the mean mom[:, :2] along tdir, the fit's unit
+    direction, NumPy's trigonometry) between the nodes' projections when within lateral of it (move; q_out in
+    place); the other end samples stay unlabelled. index, seed_jid written in place. Returns pieces, samples
+    labelled, samples moved (−1: no move step)."""
+    ns = sel.shape[0]
     n_moved = 0
     n_pieces = 0
     n_samples = 0
@@ -1400,22 +1344,41 @@ def _k_write(ok_node, L, ed, a_j, b_j, fam_s, cand, labelled, first, last, ts, q
         kk = L[a_j[t], fam_s[t] - 1]
         f0 = first[p]
         l0 = last[p]
-        d0 = pb[i, 0] - pa[i, 0]
-        d1 = pb[i, 1] - pa[i, 1]
-        Lab = math.hypot(d0, d1)
-        u0 = d0 / Lab
-        u1 = d1 / Lab
+        u0 = 0.0
+        u1 = 0.0
+        pa0 = 0.0
+        pa1 = 0.0
+        Lab = 0.0
+        if move:
+            na0, na1 = xy[a_j[t], 0], xy[a_j[t], 1]
+            nb0, nb1 = xy[b_j[t], 0], xy[b_j[t], 1]
+            mx = mom[i, 0]
+            my = mom[i, 1]
+            t0 = tdir[i, 0]
+            t1 = tdir[i, 1]
+            sg = _sign(t0 * (nb0 - na0) + t1 * (nb1 - na1))
+            t0 *= sg
+            t1 *= sg
+            ua = (na0 - mx) * t0 + (na1 - my) * t1
+            ub = (nb0 - mx) * t0 + (nb1 - my) * t1
+            pa0 = mx + ua * t0
+            pa1 = my + ua * t1
+            d0 = (mx + ub * t0) - pa0
+            d1 = (my + ub * t1) - pa1
+            Lab = math.hypot(d0, d1)
+            u0 = d0 / Lab
+            u1 = d1 / Lab
         got = False
         for j in range(f0, l0 + 1):
             s = sid[j]
             keep = min(ts[j] - ts[f0], ts[l0] - ts[j]) >= trim_px
             if not keep and move:
-                w0 = q[s, 0] - pa[i, 0]
-                w1 = q[s, 1] - pa[i, 1]
+                w0 = q[s, 0] - pa0
+                w1 = q[s, 1] - pa1
                 along = w0 * u0 + w1 * u1
                 if abs(w0 * u1 - w1 * u0) <= lateral and along > 0 and along < Lab:
-                    q_out[s, 0] = pa[i, 0] + along * u0
-                    q_out[s, 1] = pa[i, 1] + along * u1
+                    q_out[s, 0] = pa0 + along * u0
+                    q_out[s, 1] = pa1 + along * u1
                     keep = True
                     n_moved += 1
             if keep:
@@ -1559,8 +1522,14 @@ def label_piece_junctions(
     if debug is not None:
         debug.update(xy=xy, labels=np.where(ok_node[:, None], L, UNLABELLED))
     # 7. the pieces between two labelled nodes that agree on their index
+    sel, mom = _k_select(ok_node, L, ed, a_j, b_j, fam_s, cand, labelled, first, last, ts, q, sid, xy, float(trim_px))
+    if len(sel) == 0:
+        return stats
+    # the fit's direction with NumPy's arctan2 (its SIMD version differs from the C library's in the last bit)
+    ang = 0.5 * np.arctan2(2 * mom[:, 4], mom[:, 2] - mom[:, 3])
+    tdir = np.stack([np.cos(ang), np.sin(ang)], axis=1)
     move = q_out is not None
-    n_pc, n_s, n_mv = _k_write(ok_node, L, ed, a_j, b_j, fam_s, cand, labelled, first, last, ts, q, sid, xy, float(trim_px),
+    n_pc, n_s, n_mv = _k_write(sel, mom, tdir, L, ed, a_j, b_j, fam_s, cand, first, last, ts, q, sid, xy, float(trim_px),
                                float(lateral_px), move, q_out if move else np.empty((0, 2)), index, seed_jid)
     if n_mv >= 0:
         stats["samples_moved"] = int(n_mv)

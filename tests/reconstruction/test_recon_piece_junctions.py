@@ -11,7 +11,15 @@ import pytest
 
 from reconstruction.extraction import ExtractOptions, extract_grid, sigma_for
 from reconstruction.labelling import LabelOptions, TraceOptions, label_epipolar, label_samples
-from reconstruction.piece_junctions import _k_associate, _k_cluster, _k_components
+from reconstruction.piece_junctions import (
+    _k_assoc_by_node,
+    _k_associate,
+    _k_cluster,
+    _k_cluster_hash,
+    _k_components,
+    _label_piece_junctions_reference,
+    label_piece_junctions,
+)
 from reconstruction.rigmodel import UNLABELLED, rig_model
 
 # the step (off by default) measured on its own: the steps that also fill a hole in the junction labels (the
@@ -149,3 +157,72 @@ def test_associate_kernel_takes_the_nearest_node_ahead_on_the_end_line():
         want = int(np.flatnonzero(ok)[np.argmin(d[ok])]) if ok.any() else -1
         assert got[a] == want
     assert (got >= 0).sum() > 10
+
+
+def test_hashed_cluster_kernel_equals_the_grid_one():
+    """`_k_cluster_hash` (the compiled path's clustering) gives `_k_cluster`'s clusters and numbering, also with
+    points spread far apart (a sparse frame) and in one dense clump."""
+    rng = np.random.default_rng(5)
+    for c in (rng.uniform(0, 60, (300, 2)), rng.uniform(0, 1300, (1500, 2)), rng.uniform(0, 8, (200, 2))):
+        r = 2.5
+        got = _k_cluster_hash(np.ascontiguousarray(c), r)
+        want = _k_cluster(np.ascontiguousarray(c), r)
+        assert np.array_equal(got, want)
+        assert int(got.max()) + 1 < len(c)  # some points are joined
+
+
+def test_association_from_the_nodes_side_equals_the_ends_side():
+    """`_k_assoc_by_node` (every end without a node looks for the nearest node ahead) = `_k_associate` on those
+    ends; the ends that already have a node are left alone."""
+    rng = np.random.default_rng(6)
+    xy = rng.uniform(0, 50, (80, 2))
+    E = rng.uniform(0, 50, (400, 2))
+    ang = rng.uniform(0, 2 * np.pi, 400)
+    U = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    node_end = np.where(rng.uniform(size=400) < 0.3, 7, -1).astype(np.int64)
+    free = np.flatnonzero(node_end < 0)
+    got = _k_assoc_by_node(E, U, node_end, xy, 6.0, 1.0)
+    assert np.array_equal(got[free], _k_associate(E, U, free, xy, 6.0, 1.0))
+    assert np.all(got[node_end >= 0] == -1)
+    assert (got[free] >= 0).sum() > 10
+
+
+@pytest.mark.parametrize("which", ["hole", "pitch16"])
+def test_compiled_path_equals_the_reference_bit_for_bit(which, hole, small_scene_pitch16):
+    """The compiled path (the default options) writes the same index, seed junction and moved positions and
+    returns the same counts as `_label_piece_junctions_reference` on the same inputs (decision 0092, "Time")."""
+    import reconstruction.labelling as L
+
+    if which == "hole":
+        s, model, obs, labels = hole[:4]
+    else:
+        s = small_scene_pitch16
+        model, obs, labels = _hole(s, 3.0)[:3]
+    calls = []
+    orig = L.label_piece_junctions
+
+    def spy(*a, **k):
+        calls.append(([x.copy() if isinstance(x, np.ndarray) else x for x in a],
+                      {kk: (v.copy() if isinstance(v, np.ndarray) else v) for kk, v in k.items()}))
+        return orig(*a, **k)
+
+    L.label_piece_junctions = spy
+    try:
+        _samples(s, model, obs, labels)
+    finally:
+        L.label_piece_junctions = orig
+    assert len(calls) == 1
+    a, k = calls[0]
+    out = []
+    for f in (label_piece_junctions, _label_piece_junctions_reference):
+        aa = [x.copy() if isinstance(x, np.ndarray) else x for x in a]
+        kk = {key: (v.copy() if isinstance(v, np.ndarray) else v) for key, v in k.items()}
+        st = f(*aa, **kk)
+        out.append((aa[6], aa[7], kk["q_out"], st))
+    (i0, s0, q0, st0), (i1, s1, q1, st1) = out
+    assert st0 == st1
+    assert st0["samples"] > 20 and st0["nodes_labelled"] > 10, st0
+    assert np.array_equal(i0, i1, equal_nan=True)
+    assert np.array_equal(s0, s1)
+    dq = np.flatnonzero(np.any((q0 != q1) & ~(np.isnan(q0) & np.isnan(q1)), axis=1))
+    assert len(dq) == 0, (len(dq), np.abs(q0[dq] - q1[dq]).max(), q0[dq[:3]] - q1[dq[:3]])
