@@ -347,8 +347,12 @@ def _k_end_pairs_f(E, U, pos, first, last, piece, ts, qt, trim_px, anchor, fe, r
         start[b + 1] += start[b]
     fill = start[:-1].copy()
     items = np.empty(R, np.int64)
+    Ec = np.empty((R, 2))  # the ends' positions in grid order (the scans below read them in sequence)
     for r in range(R):
-        items[fill[cellr[r]]] = r
+        t = fill[cellr[r]]
+        items[t] = r
+        Ec[t, 0] = E[r, 0]
+        Ec[t, 1] = E[r, 1]
         fill[cellr[r]] += 1
     r2 = radius * radius
     for i in range(n):
@@ -361,11 +365,11 @@ def _k_end_pairs_f(E, U, pos, first, last, piece, ts, qt, trim_px, anchor, fe, r
             for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
                 b = g0 + yy * gw + xx
                 for t in range(start[b], start[b + 1]):
-                    o = items[t]
-                    ddx = E[o, 0] - E[r, 0]
-                    ddy = E[o, 1] - E[r, 1]
+                    ddx = Ec[t, 0] - E[r, 0]
+                    ddy = Ec[t, 1] - E[r, 1]
                     if ddx * ddx + ddy * ddy >= r2:
                         continue
+                    o = items[t]
                     for zz in range(2):
                         z = r if zz == 0 else o
                         if not done[z]:
