@@ -46,8 +46,10 @@ faces a crossing's gap and its end line meets the other family's piece through t
    Evidence from two directions: the component's offset (many crossings, both families) and both ends of
    the piece. One-sided pieces (a labelled node at one end only) stay out (decision 0049; measured here too).
 
-The per-end and per-node loops are compiled (`piece_ends`, `_k_end_pairs`, `_k_cluster`, `_k_associate`,
-`_k_node_ends`, `_k_continues`, `_k_components`); the rest is NumPy over the nodes and pieces.
+Speed (decision 0092, "Time, round 2"): with the method's options everything but `label_epipolar` and the fit's
+angle runs in six compiled kernels (`_k_front`, `_k_nodes`, `_k_edge_inputs`, `_k_use`, `_k_anchors`,
+`_k_select`/`_k_write`) around `_extract_kernels.edge_steps`; the measurement switches run the NumPy version
+(`_label_piece_junctions_reference`), whose outputs the compiled path reproduces bit for bit (tested).
 """
 
 from __future__ import annotations
