@@ -1218,6 +1218,54 @@ def _k_use(n_nodes, edges, eseg, cand, labelled, min_component):
 
 
 @njit
+def _k_nearest_hash(P, rows, xy, radius):
+    """For each point P[rows[a]] the nearest of the nodes xy closer than radius (−1: none), on a hashed bucket
+    grid of the nodes (cells radius wide)."""
+    K = xy.shape[0]
+    out = np.full(rows.shape[0], -1, np.int64)
+    if K == 0:
+        return out
+    size = 1
+    while size < 2 * K:
+        size *= 2
+    mask = size - 1
+    x0 = xy[:, 0].min()
+    y0 = xy[:, 1].min()
+    head = np.full(size, -1, np.int64)
+    nxt = np.empty(K, np.int64)
+    kcx = np.empty(K, np.int64)
+    kcy = np.empty(K, np.int64)
+    for k in range(K):
+        kcx[k] = int(math.floor((xy[k, 0] - x0) / radius))
+        kcy[k] = int(math.floor((xy[k, 1] - y0) / radius))
+        hsh = (kcx[k] * 73856093 + kcy[k] * 19349663) & mask
+        nxt[k] = head[hsh]
+        head[hsh] = k
+    r2 = radius * radius
+    for a in range(rows.shape[0]):
+        px = P[rows[a], 0]
+        py = P[rows[a], 1]
+        cx = int(math.floor((px - x0) / radius))
+        cy = int(math.floor((py - y0) / radius))
+        bd = np.inf
+        best = -1
+        for yy in range(cy - 1, cy + 2):
+            for xx in range(cx - 1, cx + 2):
+                k = head[(xx * 73856093 + yy * 19349663) & mask]
+                while k >= 0:
+                    if kcx[k] == xx and kcy[k] == yy:
+                        wx = xy[k, 0] - px
+                        wy = xy[k, 1] - py
+                        d2 = wx * wx + wy * wy
+                        if d2 < r2 and (d2 < bd or (d2 == bd and k < best)):
+                            bd = d2
+                            best = k
+                    k = nxt[k]
+        out[a] = best
+    return out
+
+
+@njit
 def _k_anchors(L, comp, node_end, nc, cand, labelled, val, first, fam, sid, qj, jl, xy, merge_px):
     """Step 6: a node whose label disagrees with a labelled piece ending at it (its family's index) or with a
     labelled found junction within merge_px (qj, jl: the labelled found junctions) is a conflict; every node of
@@ -1237,12 +1285,59 @@ def _k_anchors(L, comp, node_end, nc, cand, labelled, val, first, fam, sid, qj, 
             f = fam[sid[first[p]]] - 1
             if L[nd, f] != val[p]:
                 conflict[nd] = True
-    if qj.shape[0] > 0:
-        nn = _k_nearest_grid(qj, qj, np.arange(qj.shape[0]), xy, merge_px, 2.0 * merge_px, np.inf, False)
-        for a in range(qj.shape[0]):
-            nd = nn[a]
-            if nd >= 0 and ok[nd] and (L[nd, 0] != jl[a, 0] or L[nd, 1] != jl[a, 1]):
-                conflict[nd] = True
+    M = qj.shape[0]
+    if M > 0:
+        # only a found junction within merge_px of a labelled node can be in conflict (with its nearest node, when
+        # that is labelled): those junctions from a hashed grid of the junctions around the labelled nodes, then
+        # their nearest node of all (a hashed grid of the nodes)
+        size = 1
+        while size < 2 * M:
+            size *= 2
+        mask = size - 1
+        x0 = qj[:, 0].min()
+        y0 = qj[:, 1].min()
+        head = np.full(size, -1, np.int64)
+        nxt = np.empty(M, np.int64)
+        jcx = np.empty(M, np.int64)
+        jcy = np.empty(M, np.int64)
+        for a in range(M):
+            jcx[a] = int(math.floor((qj[a, 0] - x0) / merge_px))
+            jcy[a] = int(math.floor((qj[a, 1] - y0) / merge_px))
+            hsh = (jcx[a] * 73856093 + jcy[a] * 19349663) & mask
+            nxt[a] = head[hsh]
+            head[hsh] = a
+        r2 = merge_px * merge_px
+        near = np.zeros(M, np.bool_)
+        n_near = 0
+        for k in range(K):
+            if not ok[k]:
+                continue
+            cx = int(math.floor((xy[k, 0] - x0) / merge_px))
+            cy = int(math.floor((xy[k, 1] - y0) / merge_px))
+            for yy in range(cy - 1, cy + 2):
+                for xx in range(cx - 1, cx + 2):
+                    a = head[(xx * 73856093 + yy * 19349663) & mask]
+                    while a >= 0:
+                        if jcx[a] == xx and jcy[a] == yy and not near[a]:
+                            wx = xy[k, 0] - qj[a, 0]
+                            wy = xy[k, 1] - qj[a, 1]
+                            if wx * wx + wy * wy < r2:
+                                near[a] = True
+                                n_near += 1
+                        a = nxt[a]
+        if n_near > 0:
+            rows = np.empty(n_near, np.int64)
+            m = 0
+            for a in range(M):
+                if near[a]:
+                    rows[m] = a
+                    m += 1
+            nn = _k_nearest_hash(qj, rows, xy, merge_px)
+            for m in range(n_near):
+                a = rows[m]
+                nd = nn[m]
+                if nd >= 0 and ok[nd] and (L[nd, 0] != jl[a, 0] or L[nd, 1] != jl[a, 1]):
+                    conflict[nd] = True
     nC = 1
     for k in range(K):
         nC = max(nC, comp[k] + 2)

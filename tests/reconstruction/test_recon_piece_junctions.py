@@ -16,6 +16,7 @@ from reconstruction.piece_junctions import (
     _k_associate,
     _k_cluster,
     _k_cluster_hash,
+    _k_nearest_hash,
     _k_components,
     _label_piece_junctions_reference,
     label_piece_junctions,
@@ -100,18 +101,24 @@ def test_a_patch_without_junctions_is_labelled_from_the_crossings_of_its_pieces(
     assert np.median(err) < 0.02, np.median(err)
 
 
-def test_a_missing_line_does_not_shift_the_labels_across_it(small_scene):
-    """One j-line's samples removed across the hole (as if it were too dim to extract): the i-line pieces there run
-    across two cells, an edge would step j by 1 where it steps by 2. Nothing in the hole may take a wrong index."""
-    s = small_scene
+def _missing_line(s):
+    """The hole scene with one j-line's samples removed across the hole (family 0)."""
     model, obs, labels, inside, centre, radius = _hole(s, 4.0)
     fam = np.asarray(obs.family).copy()
     tj = _true_index(s, obs.q, np.full(len(obs.q), 2, np.intp))
     j0 = int(np.round(np.nanmedian(tj[inside & (fam == 2)])))
     gone = (fam == 2) & (np.abs(tj - j0) < 0.5) & (np.hypot(*(obs.q - centre).T) < radius + model.junction_step_cam_px)
-    assert gone.sum() > 20
     fam[gone] = 0
-    obs2 = dataclasses.replace(obs, family=fam)
+    return model, dataclasses.replace(obs, family=fam), labels, gone
+
+
+def test_a_missing_line_does_not_shift_the_labels_across_it(small_scene):
+    """One j-line's samples removed across the hole (as if it were too dim to extract): the i-line pieces there run
+    across two cells, an edge would step j by 1 where it steps by 2. Nothing in the hole may take a wrong index."""
+    s = small_scene
+    model, obs2, labels, gone = _missing_line(s)
+    fam = obs2.family
+    assert gone.sum() > 20
     off = _samples(s, model, obs2, labels, piece_junctions=False)
     on = _samples(s, model, obs2, labels)
     new = np.isfinite(on.index) & ~np.isfinite(off.index)
@@ -187,7 +194,7 @@ def test_association_from_the_nodes_side_equals_the_ends_side():
     assert (got[free] >= 0).sum() > 10
 
 
-@pytest.mark.parametrize("which", ["hole", "pitch16"])
+@pytest.mark.parametrize("which", ["hole", "pitch16", "missing_line"])
 def test_compiled_path_equals_the_reference_bit_for_bit(which, hole, small_scene_pitch16):
     """The compiled path (the default options) writes the same index, seed junction and moved positions and
     returns the same counts as `_label_piece_junctions_reference` on the same inputs (decision 0092, "Time")."""
@@ -195,9 +202,12 @@ def test_compiled_path_equals_the_reference_bit_for_bit(which, hole, small_scene
 
     if which == "hole":
         s, model, obs, labels = hole[:4]
-    else:
+    elif which == "pitch16":
         s = small_scene_pitch16
         model, obs, labels = _hole(s, 3.0)[:3]
+    else:
+        s = hole[0]
+        model, obs, labels, _ = _missing_line(s)
     calls = []
     orig = L.label_piece_junctions
 
@@ -222,7 +232,21 @@ def test_compiled_path_equals_the_reference_bit_for_bit(which, hole, small_scene
     (i0, s0, q0, st0), (i1, s1, q1, st1) = out
     assert st0 == st1
     assert st0["samples"] > 20 and st0["nodes_labelled"] > 10, st0
+    if which == "missing_line":
+        assert st0["components_anchor_conflict"] >= 1  # the anchors' path is exercised
     assert np.array_equal(i0, i1, equal_nan=True)
     assert np.array_equal(s0, s1)
     dq = np.flatnonzero(np.any((q0 != q1) & ~(np.isnan(q0) & np.isnan(q1)), axis=1))
     assert len(dq) == 0, (len(dq), np.abs(q0[dq] - q1[dq]).max(), q0[dq[:3]] - q1[dq[:3]])
+
+
+def test_nearest_hash_kernel_takes_the_nearest_node_within_the_radius():
+    rng = np.random.default_rng(7)
+    xy = rng.uniform(0, 80, (150, 2))
+    P = rng.uniform(-5, 85, (500, 2))
+    rows = np.arange(1, 500, 3)
+    got = _k_nearest_hash(P, rows, xy, 3.0)
+    d = np.hypot(*(P[rows][:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    want = np.where(d.min(axis=1) < 3.0, d.argmin(axis=1), -1)
+    assert np.array_equal(got, want)
+    assert (got >= 0).sum() > 20
