@@ -987,6 +987,10 @@ def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_
         if last[p] - first[p] + 1 >= min_samples:
             cand[m] = p
             m += 1
+    qt = np.empty((sid.shape[0], 2))  # the positions in trace order (the end lines read them in sequence)
+    for j in range(sid.shape[0]):
+        qt[j, 0] = q[sid[j], 0]
+        qt[j, 1] = q[sid[j], 1]
     R = 2 * nc
     E = np.empty((R, 2))
     U = np.empty((R, 2))
@@ -1005,10 +1009,10 @@ def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_
             k = last[p]
             a = max(k - anchor, first[p])
             sgn = 1.0
-        E[r, 0] = q[sid[k], 0]
-        E[r, 1] = q[sid[k], 1]
-        d0 = E[r, 0] - q[sid[a], 0]
-        d1 = E[r, 1] - q[sid[a], 1]
+        E[r, 0] = qt[k, 0]
+        E[r, 1] = qt[k, 1]
+        d0 = E[r, 0] - qt[a, 0]
+        d1 = E[r, 1] - qt[a, 1]
         Ln = math.sqrt(d0 * d0 + d1 * d1)
         if Ln >= 1.5:
             U[r, 0] = d0 / Ln
@@ -1037,10 +1041,6 @@ def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_
         if unl[r]:
             srch[m] = r
             m += 1
-    qt = np.empty((sid.shape[0], 2))
-    for j in range(sid.shape[0]):
-        qt[j, 0] = q[sid[j], 0]
-        qt[j, 1] = q[sid[j], 1]
     part, cs = _k_end_pairs_f(E, U, ep, first, last, piece, ts, qt, trim_px, anchor, fe, srch, reach, sin_min)
     nh = 0
     for i in range(ns):
@@ -1108,8 +1108,15 @@ def _k_nodes(E, U, fe, h, c, merge_px, reach, lateral, continue_px, x_both, q, f
         for f in range(2):
             two[k, f] = ne[k, f] >= 2 and math.hypot(sx[k, f], sy[k, f]) <= ne[k, f] - 1.5
             through[k, f] = two[k, f]
-            if has[k, f] and not two[k, f]:
-                n_one += 1
+    # the continuation test only where it decides: a node with both families, one of them two-sided, no end
+    # line off it, and (x_both) a one-sided family (with x_both False a two-sided family is already through)
+    ask = np.zeros((K, 2), np.bool_)
+    for k in range(K):
+        if x_both and has[k, 0] and has[k, 1] and (two[k, 0] or two[k, 1]) and not off_line[k]:
+            for f in range(2):
+                if not two[k, f]:
+                    ask[k, f] = True
+                    n_one += 1
     if continue_px > 0 and n_one > 0:
         pts = np.empty((n_one, 2))
         dn = np.empty((n_one, 2))
@@ -1118,7 +1125,7 @@ def _k_nodes(E, U, fe, h, c, merge_px, reach, lateral, continue_px, x_both, q, f
         m = 0
         for k in range(K):
             for f in range(2):
-                if has[k, f] and not two[k, f]:
+                if ask[k, f]:
                     nrm = max(math.hypot(sx[k, f], sy[k, f]), 1e-12)
                     pts[m, 0] = xy[k, 0]
                     pts[m, 1] = xy[k, 1]
