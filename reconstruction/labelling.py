@@ -514,7 +514,7 @@ class TraceOptions:
         (`reconstruction.piece_seeds`, decision 0089).
     piece_junctions: build junctions at the crossings of pieces where extraction found none and label them as
         found ones (`reconstruction.piece_junctions`, decision 0092). Off by default: +0.8 to +1.9 coverage
-        points on the 1280 scenes for 1.4–2.2 ms of label time (decision 0092).
+        points on the 1280 scenes for 1.4–2.1 ms of label time (decision 0092).
     """
 
     mix_sigma: float = 2.0
