@@ -30,6 +30,7 @@ from reconstruction import _label_kernels as _k
 from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import epipolar_lines, paper_epipolar_mb
+from reconstruction.piece_junctions import label_piece_junctions
 from reconstruction.piece_seeds import seed_one_sided
 from reconstruction.surface_labels import label_from_surface
 from reconstruction.rigmodel import UNLABELLED, RigModel
@@ -512,6 +513,8 @@ class TraceOptions:
     piece_seeds: label a piece that a crossing with a labelled line names at one end when the crossing at
         its other end, on the piece's light sheet, lands on the next line of the other family
         (`reconstruction.piece_seeds`, decision 0089).
+    piece_junctions: build junctions at the crossings of pieces where extraction found none and label them as
+        found ones (`reconstruction.piece_junctions`, decision 0092).
     surface_labels: label a piece whose index the labelled surface around it predicts: a plane fit of the
         labelled samples' depths within surface_radius junction steps beyond the piece's half extent, with
         neighbours on all sides of the piece and a residual far below one sheet step; surface_rounds rounds
@@ -545,6 +548,7 @@ class TraceOptions:
     far_end_check: bool = True
     from_segments: bool = True
     piece_seeds: bool = True
+    piece_junctions: bool = True
     surface_labels: bool = True
     surface_rounds: int = 3
     surface_radius: float = 1.0
@@ -915,6 +919,16 @@ def label_samples(
                                 trim_px=options.cross_trim_sigma * sigma_px, tol_px=options.cross_residual_px,
                                 min_samples=options.cross_min_samples, anchor=options.fill_anchor)
             stats["samples_piece_seeds"] = ps["samples"]
+        if options.piece_junctions and options.cross_pieces and model is not None and grid is not None:
+            # junctions at the crossings of pieces where extraction found none (decision 0092)
+            pj = label_piece_junctions(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
+                                       radius_px=options.cross_radius * model.junction_step_cam_px, grid=grid,
+                                       q_junction=obs.q_junction, junction_labels=lab, trim_px=options.cross_trim_sigma * sigma_px,
+                                       anchor=options.fill_anchor,
+                                       reach_px=0.5 * (cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
+                                                                              min_angle_deg=options.continue_gap_deg or 45.0)),
+                                       lateral_px=options.seed_lateral_px * cell, q_out=q_out)
+            stats["samples_piece_junctions"] = pj["samples"]
         if options.surface_labels and options.cross_pieces and model is not None and grid is not None:
             # pieces inside a labelled surface that predicts their index (decision 0093)
             sf = label_from_surface(q, fam, sid, piece, ts, index, seed_jid, model=model, depth_range_mm=depth_range_mm,

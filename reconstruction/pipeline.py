@@ -277,6 +277,7 @@ def _triangulate(
         "samples_gap_filled": int(sample_stats.get("samples_gap_filled", 0)),
         "samples_piece_seeds": int(sample_stats.get("samples_piece_seeds", 0)),
         "samples_surface_labels": int(sample_stats.get("samples_surface_labels", 0)),
+        "samples_piece_junctions": int(sample_stats.get("samples_piece_junctions", 0)),
         "samples_crossing_filled": int(cp.stats["samples_crossing_filled"]) if cp is not None else 0,
         "traces_conflicting": int(sample_stats.get("traces_conflicting", 0)),
         "components_split": int(lab.stats.get("components_split", 0)),
