@@ -171,6 +171,24 @@ class RigModel:
         k, dist = project_nearest_line(self, 3 - fam, p)
         return p, depth_cam(self.procam, p), k, dist
 
+    def sheet_depth(self, q_cam: np.ndarray, family: np.ndarray, index: np.ndarray, *, xy_cam: np.ndarray | None = None) -> np.ndarray:
+        """Camera-frame depth z (N,) mm of camera pixels q_cam (N, 2) on the light sheets of lines (family (N,)
+        1 or 2, integer index (N,)): `sheet_check(q_cam, family, index)[1]`, to the bit, without the nearest
+        line of the other family (decision 0094). xy_cam: `cam_normalised(q_cam)` when the caller has it
+        (read only on the NumPy path, which computes it otherwise)."""
+        q = np.ascontiguousarray(np.asarray(q_cam, np.float64).reshape(-1, 2))
+        fam = np.ascontiguousarray(np.asarray(family).reshape(-1), dtype=np.intp)
+        idx = np.ascontiguousarray(np.asarray(index).reshape(-1), dtype=np.intp)
+        n = len(q)
+        proj = self.procam.projector
+        if n and self.cam_xy_table is not None and proj.dist.size <= 5:
+            z = np.empty(n)
+            if _k_sheet_depth(q, fam, idx, self.cam_xy_table, 1.0 / self.cam_table_px, self.procam.R_proj_cam, self.procam.t_proj_cam,
+                              self.index_min, self.sheet_nodes, 1 if proj.has_distortion else 0, *self._sheet_kernel_tables, z):
+                return z
+        xy = self.cam_normalised(q) if xy_cam is None else xy_cam
+        return depth_cam(self.procam, self.intersect_light_sheets(xy, fam, idx))
+
     def junction_xy(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         """Normalised projector coordinates (N, 2) of junctions with integer labels inside the pattern."""
         return self.xy_junction[np.asarray(i) - self.index_min, np.asarray(j) - self.index_min]
@@ -443,6 +461,28 @@ def _k_sheet_check(q, family, index, tab, inv_step, R, t, index_min, nodes, iter
         z[n] = (out[n, 0] - t0) * r02 + (out[n, 1] - t1) * r12 + (out[n, 2] - t2) * r22
         other[n] = 3 - family[n]
     return _project_nearest_line(out, other, K_nl, dist_nl, distorted, cu, cv, n12, offs, hyp, indices)
+
+
+@njit
+def _k_sheet_depth(q, family, index, tab, inv_step, R, t, index_min, nodes, iterations,
+                   end_n, end_t, chord_n, chord_t, K_proj, dist, centre, n_other, offsets, inv_dx, guess, z):
+    """`RigModel.sheet_depth`'s compiled path: `_k_sheet_check`'s table, light sheets and depth, without the
+    nearest line; writes z (N,) and returns True, or False when a pixel lies outside the table."""
+    N = q.shape[0]
+    xy = np.empty((N, 2))
+    inside = np.empty(N, np.bool_)
+    _k_cam_bilinear(q, tab, inv_step, xy, inside)
+    for n in range(N):
+        if not inside[n]:
+            return False
+    out = np.empty((N, 3))
+    _k_light_sheets(xy, family, index, R, t, index_min, nodes, iterations,
+                    end_n, end_t, chord_n, chord_t, K_proj, dist, centre, n_other, offsets, inv_dx, guess, out, np.empty(N))
+    r02, r12, r22 = R[0, 2], R[1, 2], R[2, 2]
+    t0, t1, t2 = t[0], t[1], t[2]
+    for n in range(N):
+        z[n] = (out[n, 0] - t0) * r02 + (out[n, 1] - t1) * r12 + (out[n, 2] - t2) * r22
+    return True
 
 
 def _sheet_tables(procam: ProCam, pattern: GridPattern, nodes: int) -> tuple[np.ndarray, np.ndarray]:

@@ -504,14 +504,16 @@ def label_from_surface(
         lens = count[pc]
         pos = np.repeat(first[pc] - np.cumsum(lens) + lens, lens) + np.arange(lens.sum())
         s_all = sid[pos]
-        zp, p_pred = _k_predict(coef[fr], lens, model.cam_normalised(q[s_all]), R, t)
+        q_s = q[s_all]
+        xy_s = model.cam_normalised(q_s)
+        zp, p_pred = _k_predict(coef[fr], lens, xy_s, R, t)
         f_s = fam[s_all].astype(np.int64)
         kk, dist = project_nearest_line(model, f_s, p_pred)
         k, ok, mid = _k_piece_index(lens, kk, dist, f_s, spacing, float(max_pred_lines))
         # 3. and 5. the samples on sheet k and each piece's middle sample on sheet k + 1 (one call): the fit
-        # against the depth step, the drift along the piece, the working volume
-        _, zz, _, _ = model.sheet_check(np.concatenate((q[s_all], q[s_all[mid]])), np.concatenate((f_s, f_s[mid])),
-                                        np.concatenate((np.repeat(k, lens), k + 1)))
+        # against the depth step, the drift along the piece, the working volume (the depths only: decision 0094)
+        zz = model.sheet_depth(np.concatenate((q_s, q_s[mid])), np.concatenate((f_s, f_s[mid])),
+                               np.concatenate((np.repeat(k, lens), k + 1)), xy_cam=np.concatenate((xy_s, xy_s[mid])))
         acc, write = _k_accept(lens, ok, zp, zz[: len(s_all)], zz[len(s_all):], mid, rms[fr],
                                np.maximum(ts[last[pc]] - ts[first[pc]], 1.0), float(model.junction_step_cam_px),
                                float(max_fit_lines), float(max_pred_lines), z_lo, z_hi, ts[pos], float(trim_px))
