@@ -48,7 +48,7 @@ import numpy as np
 
 from reconstruction._jit import njit
 from reconstruction.continuation import project_nearest_line
-from reconstruction.rigmodel import RigModel
+from reconstruction.rigmodel import RigModel, _k_cam_bilinear, _k_light_sheets
 
 
 
@@ -210,6 +210,42 @@ def _k_needed(cen, rad, index, w, seen, x0, y0, cell, gw, gh, start, items):
                     out[m] = s
                     m += 1
     return out[:m]
+
+
+@njit
+def _k_needed_points(cen, rad, index, w, seen, x0, y0, cell, gw, gh, start, items, q, fam, xy_lab, tab, inv_step, R, t,
+                     index_min, nodes, iterations, end_n, end_t, chord_n, chord_t, K_proj, dist, centre, n_other, offsets,
+                     inv_dx, guess):
+    """`_k_needed`, then those samples' light-sheet points in one call (decision 0094): their normalised camera
+    coordinates from the camera table (`RigModel.cam_normalised`'s `_k_cam_bilinear`), written to xy_lab (read
+    only where w becomes finite), and their points p (m, 3) on their own sheets (`RigModel.intersect_light_sheets`'
+    `_k_light_sheets`). Returns (ids, p, True), or (ids, empty, False) when a sample lies outside the table
+    (the caller then takes the NumPy path for these ids)."""
+    todo = _k_needed(cen, rad, index, w, seen, x0, y0, cell, gw, gh, start, items)
+    m = todo.shape[0]
+    qq = np.empty((m, 2))
+    fam_t = np.empty(m, np.intp)
+    idx_t = np.empty(m, np.intp)
+    for r in range(m):
+        s = todo[r]
+        qq[r, 0] = q[s, 0]
+        qq[r, 1] = q[s, 1]
+        fam_t[r] = fam[s]
+        idx_t[r] = np.int64(index[s])
+    xy = np.empty((m, 2))
+    inside = np.empty(m, np.bool_)
+    _k_cam_bilinear(qq, tab, inv_step, xy, inside)
+    for r in range(m):
+        if not inside[r]:
+            return todo, np.empty((0, 3)), False
+    p = np.empty((m, 3))
+    if m:
+        _k_light_sheets(xy, fam_t, idx_t, R, t, index_min, nodes, iterations, end_n, end_t, chord_n, chord_t, K_proj, dist,
+                        centre, n_other, offsets, inv_dx, guess, p, np.empty(m))
+    for r in range(m):
+        xy_lab[todo[r], 0] = xy[r, 0]
+        xy_lab[todo[r], 1] = xy[r, 1]
+    return todo, p, True
 
 
 @njit
@@ -464,7 +500,9 @@ def label_from_surface(
     R = model.procam.R_proj_cam
     t = model.procam.t_proj_cam
     w_lab = np.full(len(q), np.nan)  # 1/z of the labelled samples, computed once per sample
-    xy_lab = np.full((len(q), 2), np.nan)
+    xy_lab = np.empty((len(q), 2))  # read only where w_lab is finite
+    # the labelled samples' points in one compiled call where the model's kernels apply (as `RigModel.sheet_check`)
+    fast = model.cam_xy_table is not None and model.procam.projector.dist.size <= 5
     seen = np.zeros(len(q), np.bool_)  # samples whose depth was computed (or missed the sheet)
     first, last, cand_all, cen_all, ext_all = _k_open_pieces(sid, piece, index, q, n_p, int(min_samples))
     if len(cand_all) == 0:
@@ -487,13 +525,21 @@ def label_from_surface(
             break
         cand, cen, rad = cand_all[sup], cen_all[sup], rad_all[sup]
         # 1. the local surface, from the depths of the labelled samples around (each computed once)
-        todo = _k_needed(cen, rad, index, w_lab, seen, *grid[:7])
+        if fast:
+            todo, p_t, inside = _k_needed_points(cen, rad, index, w_lab, seen, *grid[:7], q, fam, xy_lab, model.cam_xy_table,
+                                                 1.0 / model.cam_table_px, R, t, model.index_min, model.sheet_nodes,
+                                                 1 if model.procam.projector.has_distortion else 0, *model._sheet_kernel_tables)
+        else:
+            todo, p_t, inside = _k_needed(cen, rad, index, w_lab, seen, *grid[:7]), None, False
         if len(todo):
-            xy_t = model.cam_normalised(q[todo])
-            z = (model.intersect_light_sheets(xy_t, fam[todo], index[todo].astype(np.int64)) - t) @ R[:, 2]  # camera-frame depth
+            if not inside:
+                xy_t = model.cam_normalised(q[todo])
+                p_t = model.intersect_light_sheets(xy_t, fam[todo], index[todo].astype(np.int64))
+            z = (p_t - t) @ R[:, 2]  # camera-frame depth
             ok = z > 0  # (NaN where the ray misses the sheet)
             w_lab[todo[ok]] = 1.0 / z[ok]
-            xy_lab[todo[ok]] = xy_t[ok]
+            if not inside:
+                xy_lab[todo[ok]] = xy_t[ok]
         coef, rms, near = _k_fit_planes(cen, rad, q, xy_lab, w_lab, index, *grid[:7])
         fr = np.flatnonzero(np.isfinite(coef[:, 0]))
         stats["fitted"] += len(fr)
