@@ -47,6 +47,7 @@ import math
 import numpy as np
 
 from reconstruction._jit import njit
+from reconstruction._label_kernels import project_nearest_line as _k_project_nearest_line
 from reconstruction.continuation import project_nearest_line
 from reconstruction.rigmodel import RigModel, _k_cam_bilinear, _k_light_sheets
 
@@ -420,6 +421,98 @@ def _k_accept(lens, ok, zp, zs, z1, mid, rms, length, step_px, max_fit_lines, ma
 
 
 @njit
+def _k_predict_accept(fr, cand, count, first, last, sid, q, fam, ts, coef, rms, spacing, max_pred_lines, step_px, max_fit_lines,
+                      z_lo, z_hi, trim_px, tab, inv_step, R, t, index_min, nodes, iterations, end_n, end_t, chord_n, chord_t,
+                      K_proj, dist, centre, n_other, offsets, inv_dx, guess, K_nl, dist_nl, distorted, cu, cv, n12, offs, hyp,
+                      indices):
+    """Steps 3–5 of a round for the fitted pieces cand[fr] in one call (decision 0094), the same operations as
+    the NumPy path of `label_from_surface`: their samples (trace positions pos, ids s_all), normalised camera
+    coordinates from the camera table (`_k_cam_bilinear`), `_k_predict`, the nearest line of their family
+    (`_label_kernels.project_nearest_line`), `_k_piece_index`, the depths on sheet k and the middle samples'
+    on k + 1 (`RigModel.sheet_depth`'s kernel path) and `_k_accept`. Returns (lens, pos, s_all, k, acc, write,
+    True), or False last when a sample lies outside the table (the caller takes the NumPy path)."""
+    m = fr.shape[0]
+    lens = np.empty(m, np.int64)
+    N = 0
+    for i in range(m):
+        lens[i] = count[cand[fr[i]]]
+        N += lens[i]
+    pos = np.empty(N, np.int64)
+    s_all = np.empty(N, np.int64)
+    qq = np.empty((N, 2))
+    f_s = np.empty(N, np.int64)
+    r = 0
+    for i in range(m):
+        f0 = first[cand[fr[i]]]
+        for j in range(lens[i]):
+            pos[r] = f0 + j
+            s = sid[f0 + j]
+            s_all[r] = s
+            qq[r, 0] = q[s, 0]
+            qq[r, 1] = q[s, 1]
+            f_s[r] = fam[s]
+            r += 1
+    xy = np.empty((N, 2))
+    inside = np.empty(N, np.bool_)
+    _k_cam_bilinear(qq, tab, inv_step, xy, inside)
+    k = np.zeros(m, np.int64)
+    acc = np.zeros(m, np.bool_)
+    write = np.zeros(N, np.bool_)
+    for n in range(N):
+        if not inside[n]:
+            return lens, pos, s_all, k, acc, write, False
+    cf = np.empty((m, 5))
+    rr = np.empty(m)
+    length = np.empty(m)
+    for i in range(m):
+        for c in range(5):
+            cf[i, c] = coef[fr[i], c]
+        rr[i] = rms[fr[i]]
+        pc = cand[fr[i]]
+        length[i] = max(ts[last[pc]] - ts[first[pc]], 1.0)
+    zp, p_pred = _k_predict(cf, lens, xy, R, t)
+    kk, dd = _k_project_nearest_line(p_pred, f_s, K_nl, dist_nl, distorted, cu, cv, n12, offs, hyp, indices)
+    k, ok, mid = _k_piece_index(lens, kk, dd, f_s, spacing, max_pred_lines)
+    # the samples on sheet k and each piece's middle sample on sheet k + 1
+    M = N + m
+    xy2 = np.empty((M, 2))
+    fam2 = np.empty(M, np.intp)
+    idx2 = np.empty(M, np.intp)
+    r = 0
+    for i in range(m):
+        for j in range(lens[i]):
+            xy2[r, 0] = xy[r, 0]
+            xy2[r, 1] = xy[r, 1]
+            fam2[r] = f_s[r]
+            idx2[r] = k[i]
+            r += 1
+    for i in range(m):
+        xy2[N + i, 0] = xy[mid[i], 0]
+        xy2[N + i, 1] = xy[mid[i], 1]
+        fam2[N + i] = f_s[mid[i]]
+        idx2[N + i] = k[i] + 1
+    out = np.empty((M, 3))
+    if M:
+        _k_light_sheets(xy2, fam2, idx2, R, t, index_min, nodes, iterations, end_n, end_t, chord_n, chord_t, K_proj, dist,
+                        centre, n_other, offsets, inv_dx, guess, out, np.empty(M))
+    r02, r12, r22 = R[0, 2], R[1, 2], R[2, 2]
+    t0, t1, t2 = t[0], t[1], t[2]
+    zs = np.empty(N)
+    z1 = np.empty(m)
+    for n in range(M):
+        z = (out[n, 0] - t0) * r02 + (out[n, 1] - t1) * r12 + (out[n, 2] - t2) * r22
+        if n < N:
+            zs[n] = z
+        else:
+            z1[n - N] = z
+    ts_s = np.empty(N)
+    for n in range(N):
+        ts_s[n] = ts[pos[n]]
+    acc, write = _k_accept(lens, ok, zp, zs, z1, mid, rr, length, step_px, max_fit_lines, max_pred_lines, z_lo, z_hi, ts_s, trim_px)
+    return lens, pos, s_all, k, acc, write, True
+
+
+@njit
 def _k_write(lens, write, k, near, s_all, q, index, seed_jid, sums, dirty, x0, y0, cell, gw, gh):
     """Writes the accepted samples (write (N,), in the order of s_all, lens (m,) per piece): index k of their
     piece, seed_jid of its nearest labelled neighbour near[i]; marks their grid cells in dirty (cleared first)
@@ -546,23 +639,31 @@ def label_from_surface(
         if len(fr) == 0:
             break
         # 4. the prediction at every sample of those pieces
-        pc = cand[fr]
-        lens = count[pc]
-        pos = np.repeat(first[pc] - np.cumsum(lens) + lens, lens) + np.arange(lens.sum())
-        s_all = sid[pos]
-        q_s = q[s_all]
-        xy_s = model.cam_normalised(q_s)
-        zp, p_pred = _k_predict(coef[fr], lens, xy_s, R, t)
-        f_s = fam[s_all].astype(np.int64)
-        kk, dist = project_nearest_line(model, f_s, p_pred)
-        k, ok, mid = _k_piece_index(lens, kk, dist, f_s, spacing, float(max_pred_lines))
-        # 3. and 5. the samples on sheet k and each piece's middle sample on sheet k + 1 (one call): the fit
-        # against the depth step, the drift along the piece, the working volume (the depths only: decision 0094)
-        zz = model.sheet_depth(np.concatenate((q_s, q_s[mid])), np.concatenate((f_s, f_s[mid])),
-                               np.concatenate((np.repeat(k, lens), k + 1)), xy_cam=np.concatenate((xy_s, xy_s[mid])))
-        acc, write = _k_accept(lens, ok, zp, zz[: len(s_all)], zz[len(s_all):], mid, rms[fr],
-                               np.maximum(ts[last[pc]] - ts[first[pc]], 1.0), float(model.junction_step_cam_px),
-                               float(max_fit_lines), float(max_pred_lines), z_lo, z_hi, ts[pos], float(trim_px))
+        done_k = False
+        if fast:
+            lens, pos, s_all, k, acc, write, done_k = _k_predict_accept(
+                fr, cand, count, first, last, sid, q, fam, ts, coef, rms, spacing, float(max_pred_lines),
+                float(model.junction_step_cam_px), float(max_fit_lines), z_lo, z_hi, float(trim_px), model.cam_xy_table,
+                1.0 / model.cam_table_px, R, t, model.index_min, model.sheet_nodes, 1 if model.procam.projector.has_distortion else 0,
+                *model._sheet_kernel_tables, *model.nearest_line_tables)
+        if not done_k:
+            pc = cand[fr]
+            lens = count[pc]
+            pos = np.repeat(first[pc] - np.cumsum(lens) + lens, lens) + np.arange(lens.sum())
+            s_all = sid[pos]
+            q_s = q[s_all]
+            xy_s = model.cam_normalised(q_s)
+            zp, p_pred = _k_predict(coef[fr], lens, xy_s, R, t)
+            f_s = fam[s_all].astype(np.int64)
+            kk, dist = project_nearest_line(model, f_s, p_pred)
+            k, ok, mid = _k_piece_index(lens, kk, dist, f_s, spacing, float(max_pred_lines))
+            # 3. and 5. the samples on sheet k and each piece's middle sample on sheet k + 1 (one call): the fit
+            # against the depth step, the drift along the piece, the working volume (the depths only: decision 0094)
+            zz = model.sheet_depth(np.concatenate((q_s, q_s[mid])), np.concatenate((f_s, f_s[mid])),
+                                   np.concatenate((np.repeat(k, lens), k + 1)), xy_cam=np.concatenate((xy_s, xy_s[mid])))
+            acc, write = _k_accept(lens, ok, zp, zz[: len(s_all)], zz[len(s_all):], mid, rms[fr],
+                                   np.maximum(ts[last[pc]] - ts[first[pc]], 1.0), float(model.junction_step_cam_px),
+                                   float(max_fit_lines), float(max_pred_lines), z_lo, z_hi, ts[pos], float(trim_px))
         stats["predicted"] += int(acc.sum())
         done, nw = _k_write(lens, write, k, near[fr], s_all, q, index, seed_jid, sums, dirty, x0, y0, cell, gw, gh)
         if nw == 0:
