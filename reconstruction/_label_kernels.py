@@ -2610,3 +2610,26 @@ def redo_rows(changed, e, te, sign, bk, k_end, jid_end, unlabelled):
         jid_end[i] = -1
         k += 1
     return redo, e_r, te_r, s_r, b_r
+
+
+@njit
+def epipolar_from_rays(d, t):
+    """`geometry.epipolar_lines` after its ray directions d (N, 3) = `camera_rays_proj` (decision 0094): l = t × d
+    (np.cross's products and differences), scaled by 1/hypot(l0, l1) (NaN where that is 0), the same float
+    operations in the same order; np.cross's broadcasting and axis moves cost ~40 µs per call, this ~2."""
+    N = d.shape[0]
+    out = np.empty((N, 3))
+    t0 = t[0]
+    t1 = t[1]
+    t2 = t[2]
+    for n in range(N):
+        c0 = t1 * d[n, 2] - t2 * d[n, 1]
+        c1 = t2 * d[n, 0] - t0 * d[n, 2]
+        c2 = t0 * d[n, 1] - t1 * d[n, 0]
+        nm = math.hypot(c0, c1)
+        if nm == 0.0:
+            nm = np.nan
+        out[n, 0] = c0 / nm
+        out[n, 1] = c1 / nm
+        out[n, 2] = c2 / nm
+    return out

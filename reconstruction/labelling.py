@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 from reconstruction import _label_kernels as _k
 from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.extraction import GridObservation
-from reconstruction.geometry import epipolar_lines, paper_epipolar_mb
+from reconstruction.geometry import camera_rays_proj, epipolar_lines, paper_epipolar_mb
 from reconstruction.piece_junctions import label_piece_junctions
 from reconstruction.piece_seeds import seed_one_sided
 from reconstruction.surface_labels import label_from_surface
@@ -238,7 +238,8 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     edges, delta, removed = clean_edges(M, obs.edges, obs.edge_delta)
     stats["contradicting_edges"] = removed
     rel, comp = _propagate(M, edges, delta)
-    lines = epipolar_lines(model.procam, xy_cam)
+    # `epipolar_lines`, its cross product and scaling compiled (decision 0094)
+    lines = _k.epipolar_from_rays(camera_rays_proj(model.procam, xy_cam), model.t_proj_cam_c)
     component = comp.copy()
     next_id = int(comp.max()) + 1 if M else 0
     groups = _groups(comp)

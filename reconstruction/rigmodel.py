@@ -94,6 +94,11 @@ class RigModel:
         return float(along * self.cam_per_proj_px)
 
     @cached_property
+    def t_proj_cam_c(self) -> np.ndarray:
+        """procam.t_proj_cam as a contiguous float64 (3,) for the kernels (decision 0094)."""
+        return np.ascontiguousarray(self.procam.t_proj_cam, np.float64)
+
+    @cached_property
     def _sheet_kernel_tables(self) -> tuple:
         """The arrays `_k_light_sheets` reads after its fixed arguments (all float64, C order)."""
         t = self.procam.t_proj_cam
