@@ -94,6 +94,13 @@ class RigModel:
         return float(along * self.cam_per_proj_px)
 
     @cached_property
+    def line_spacing_perp_px(self) -> np.ndarray:
+        """Each family's smallest line spacing perpendicular to its lines (2,) projector px (decision 0094:
+        read by `surface_labels` once per frame)."""
+        pat = self.pattern
+        return np.min(np.diff(self.line_offsets_px, axis=1), axis=1) / np.hypot(1.0, np.array([pat.n1, pat.n2]))
+
+    @cached_property
     def t_proj_cam_c(self) -> np.ndarray:
         """procam.t_proj_cam as a contiguous float64 (3,) for the kernels (decision 0094)."""
         return np.ascontiguousarray(self.procam.t_proj_cam, np.float64)

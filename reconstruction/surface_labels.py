@@ -49,6 +49,7 @@ import numpy as np
 from reconstruction._jit import njit
 from reconstruction._label_kernels import project_nearest_line as _k_project_nearest_line
 from reconstruction.continuation import project_nearest_line
+from reconstruction.geometry import depth_cam
 from reconstruction.rigmodel import RigModel, _k_cam_bilinear, _k_light_sheets
 
 
@@ -214,7 +215,22 @@ def _k_needed(cen, rad, index, w, seen, x0, y0, cell, gw, gh, start, items):
 
 
 @njit
-def _k_needed_points(cen, rad, index, w, seen, x0, y0, cell, gw, gh, start, items, q, fam, xy_lab, tab, inv_step, R, t,
+def _k_cam_xy(q, tab, inv_step, K_cam, xy, inside):
+    """`RigModel.cam_normalised` of pixels q (N, 2) into xy (N, 2): the camera table (`_k_cam_bilinear`; inside
+    (N,) False where a pixel lies outside it), or with an empty table (a camera without distortion) the pinhole
+    inverse with K_cam, the operations of `Intrinsics.pixels_to_normalised` (decision 0094)."""
+    if tab.shape[0] > 0:
+        _k_cam_bilinear(q, tab, inv_step, xy, inside)
+        return
+    for n in range(q.shape[0]):
+        y = (q[n, 1] - K_cam[1, 2]) / K_cam[1, 1]
+        xy[n, 0] = (q[n, 0] - K_cam[0, 2] - K_cam[0, 1] * y) / K_cam[0, 0]
+        xy[n, 1] = y
+        inside[n] = True
+
+
+@njit
+def _k_needed_points(cen, rad, index, w, seen, x0, y0, cell, gw, gh, start, items, q, fam, xy_lab, tab, inv_step, K_cam, R, t,
                      index_min, nodes, iterations, end_n, end_t, chord_n, chord_t, K_proj, dist, centre, n_other, offsets,
                      inv_dx, guess):
     """`_k_needed`, then those samples' light-sheet points in one call (decision 0094): their normalised camera
@@ -235,7 +251,7 @@ def _k_needed_points(cen, rad, index, w, seen, x0, y0, cell, gw, gh, start, item
         idx_t[r] = np.int64(index[s])
     xy = np.empty((m, 2))
     inside = np.empty(m, np.bool_)
-    _k_cam_bilinear(qq, tab, inv_step, xy, inside)
+    _k_cam_xy(qq, tab, inv_step, K_cam, xy, inside)
     for r in range(m):
         if not inside[r]:
             return todo, np.empty((0, 3)), False
@@ -421,16 +437,16 @@ def _k_accept(lens, ok, zp, zs, z1, mid, rms, length, step_px, max_fit_lines, ma
 
 
 @njit
-def _k_predict_accept(fr, cand, count, first, last, sid, q, fam, ts, coef, rms, spacing, max_pred_lines, step_px, max_fit_lines,
-                      z_lo, z_hi, trim_px, tab, inv_step, R, t, index_min, nodes, iterations, end_n, end_t, chord_n, chord_t,
-                      K_proj, dist, centre, n_other, offsets, inv_dx, guess, K_nl, dist_nl, distorted, cu, cv, n12, offs, hyp,
-                      indices):
-    """Steps 3–5 of a round for the fitted pieces cand[fr] in one call (decision 0094), the same operations as
-    the NumPy path of `label_from_surface`: their samples (trace positions pos, ids s_all), normalised camera
-    coordinates from the camera table (`_k_cam_bilinear`), `_k_predict`, the nearest line of their family
-    (`_label_kernels.project_nearest_line`), `_k_piece_index`, the depths on sheet k and the middle samples'
-    on k + 1 (`RigModel.sheet_depth`'s kernel path) and `_k_accept`. Returns (lens, pos, s_all, k, acc, write,
-    True), or False last when a sample lies outside the table (the caller takes the NumPy path)."""
+def _k_predict_sheets(fr, cand, count, first, last, sid, q, fam, ts, coef, rms, spacing, max_pred_lines, tab, inv_step, K_cam, R,
+                      t, index_min, nodes, iterations, end_n, end_t, chord_n, chord_t, K_proj, dist, centre, n_other, offsets,
+                      inv_dx, guess, K_nl, dist_nl, distorted, cu, cv, n12, offs, hyp, indices):
+    """Steps 3–5 of a round for the fitted pieces cand[fr] up to the sheet points (decision 0094), the same
+    operations as the NumPy path of `label_from_surface`: their samples (trace positions pos, ids s_all),
+    normalised camera coordinates (`_k_cam_xy`), `_k_predict`, the nearest line of their family
+    (`_label_kernels.project_nearest_line`), `_k_piece_index`, and the points out (N + m, 3) of the samples on
+    sheet k and of the middle samples on k + 1 (`RigModel.intersect_light_sheets`' kernel). Returns (lens, pos,
+    s_all, k, ok, mid, zp, out, rms, length, ts_s, True) with `_k_accept`'s per-piece inputs, or False last
+    when a sample lies outside the camera table (the caller takes the NumPy path)."""
     m = fr.shape[0]
     lens = np.empty(m, np.int64)
     N = 0
@@ -454,16 +470,15 @@ def _k_predict_accept(fr, cand, count, first, last, sid, q, fam, ts, coef, rms, 
             r += 1
     xy = np.empty((N, 2))
     inside = np.empty(N, np.bool_)
-    _k_cam_bilinear(qq, tab, inv_step, xy, inside)
-    k = np.zeros(m, np.int64)
-    acc = np.zeros(m, np.bool_)
-    write = np.zeros(N, np.bool_)
-    for n in range(N):
-        if not inside[n]:
-            return lens, pos, s_all, k, acc, write, False
-    cf = np.empty((m, 5))
+    _k_cam_xy(qq, tab, inv_step, K_cam, xy, inside)
     rr = np.empty(m)
     length = np.empty(m)
+    ts_s = np.empty(N)
+    for n in range(N):
+        if not inside[n]:
+            e = np.zeros(0, np.int64)
+            return lens, pos, s_all, e, np.zeros(0, np.bool_), np.zeros(0, np.intp), np.empty(0), np.empty((0, 3)), rr, length, ts_s, False
+    cf = np.empty((m, 5))
     for i in range(m):
         for c in range(5):
             cf[i, c] = coef[fr[i], c]
@@ -495,19 +510,37 @@ def _k_predict_accept(fr, cand, count, first, last, sid, q, fam, ts, coef, rms, 
     if M:
         _k_light_sheets(xy2, fam2, idx2, R, t, index_min, nodes, iterations, end_n, end_t, chord_n, chord_t, K_proj, dist,
                         centre, n_other, offsets, inv_dx, guess, out, np.empty(M))
+    for n in range(N):
+        ts_s[n] = ts[pos[n]]
+    return lens, pos, s_all, k, ok, mid, zp, out, rr, length, ts_s, True
+
+
+@njit
+def _k_predict_accept(fr, cand, count, first, last, sid, q, fam, ts, coef, rms, spacing, max_pred_lines, step_px, max_fit_lines,
+                      z_lo, z_hi, trim_px, tab, inv_step, K_cam, R, t, index_min, nodes, iterations, end_n, end_t, chord_n,
+                      chord_t, K_proj, dist, centre, n_other, offsets, inv_dx, guess, K_nl, dist_nl, distorted, cu, cv, n12,
+                      offs, hyp, indices):
+    """`_k_predict_sheets`, the depths z = R[:, 2]·(p − t) as `RigModel.sheet_depth`'s kernel path computes them
+    (the camera-table rigs), and `_k_accept`, in one call. Returns (lens, pos, s_all, k, acc, write, True), or
+    False last as `_k_predict_sheets`."""
+    lens, pos, s_all, k, ok, mid, zp, out, rr, length, ts_s, good = _k_predict_sheets(
+        fr, cand, count, first, last, sid, q, fam, ts, coef, rms, spacing, max_pred_lines, tab, inv_step, K_cam, R, t, index_min,
+        nodes, iterations, end_n, end_t, chord_n, chord_t, K_proj, dist, centre, n_other, offsets, inv_dx, guess, K_nl, dist_nl,
+        distorted, cu, cv, n12, offs, hyp, indices)
+    if not good:
+        return lens, pos, s_all, k, np.zeros(0, np.bool_), np.zeros(0, np.bool_), False
+    N = s_all.shape[0]
+    m = lens.shape[0]
     r02, r12, r22 = R[0, 2], R[1, 2], R[2, 2]
     t0, t1, t2 = t[0], t[1], t[2]
     zs = np.empty(N)
     z1 = np.empty(m)
-    for n in range(M):
+    for n in range(N + m):
         z = (out[n, 0] - t0) * r02 + (out[n, 1] - t1) * r12 + (out[n, 2] - t2) * r22
         if n < N:
             zs[n] = z
         else:
             z1[n - N] = z
-    ts_s = np.empty(N)
-    for n in range(N):
-        ts_s[n] = ts[pos[n]]
     acc, write = _k_accept(lens, ok, zp, zs, z1, mid, rr, length, step_px, max_fit_lines, max_pred_lines, z_lo, z_hi, ts_s, trim_px)
     return lens, pos, s_all, k, acc, write, True
 
@@ -587,15 +620,22 @@ def label_from_surface(
         return stats
     n_p = int(piece[-1]) + 1
     z_lo, z_hi = float(depth_range_mm[0]), float(depth_range_mm[1])
-    pat = model.pattern
     # each family's smallest line spacing, perpendicular to its lines (projector px)
-    spacing = np.min(np.diff(model.line_offsets_px, axis=1), axis=1) / np.hypot(1.0, np.array([pat.n1, pat.n2]))
+    spacing = model.line_spacing_perp_px
     R = model.procam.R_proj_cam
     t = model.procam.t_proj_cam
     w_lab = np.full(len(q), np.nan)  # 1/z of the labelled samples, computed once per sample
     xy_lab = np.empty((len(q), 2))  # read only where w_lab is finite
     # the labelled samples' points in one compiled call where the model's kernels apply (as `RigModel.sheet_check`)
-    fast = model.cam_xy_table is not None and model.procam.projector.dist.size <= 5
+    # (a camera table, or a camera without distortion: the pinhole inverse; the projector's OpenCV 5-coefficient model)
+    cam_tab = model.cam_xy_table
+    pinhole = cam_tab is None and not model.procam.camera.has_distortion
+    fast = (cam_tab is not None or pinhole) and model.procam.projector.dist.size <= 5
+    if pinhole:
+        cam_tab = np.zeros((0, 0, 2))
+    inv_step = 1.0 / model.cam_table_px
+    K_cam = np.ascontiguousarray(model.procam.camera.K, np.float64)
+    iters = 1 if model.procam.projector.has_distortion else 0
     seen = np.zeros(len(q), np.bool_)  # samples whose depth was computed (or missed the sheet)
     first, last, cand_all, cen_all, ext_all = _k_open_pieces(sid, piece, index, q, n_p, int(min_samples))
     if len(cand_all) == 0:
@@ -619,9 +659,8 @@ def label_from_surface(
         cand, cen, rad = cand_all[sup], cen_all[sup], rad_all[sup]
         # 1. the local surface, from the depths of the labelled samples around (each computed once)
         if fast:
-            todo, p_t, inside = _k_needed_points(cen, rad, index, w_lab, seen, *grid[:7], q, fam, xy_lab, model.cam_xy_table,
-                                                 1.0 / model.cam_table_px, R, t, model.index_min, model.sheet_nodes,
-                                                 1 if model.procam.projector.has_distortion else 0, *model._sheet_kernel_tables)
+            todo, p_t, inside = _k_needed_points(cen, rad, index, w_lab, seen, *grid[:7], q, fam, xy_lab, cam_tab, inv_step, K_cam,
+                                                 R, t, model.index_min, model.sheet_nodes, iters, *model._sheet_kernel_tables)
         else:
             todo, p_t, inside = _k_needed(cen, rad, index, w_lab, seen, *grid[:7]), None, False
         if len(todo):
@@ -640,12 +679,19 @@ def label_from_surface(
             break
         # 4. the prediction at every sample of those pieces
         done_k = False
-        if fast:
+        if fast and not pinhole:
             lens, pos, s_all, k, acc, write, done_k = _k_predict_accept(
                 fr, cand, count, first, last, sid, q, fam, ts, coef, rms, spacing, float(max_pred_lines),
-                float(model.junction_step_cam_px), float(max_fit_lines), z_lo, z_hi, float(trim_px), model.cam_xy_table,
-                1.0 / model.cam_table_px, R, t, model.index_min, model.sheet_nodes, 1 if model.procam.projector.has_distortion else 0,
-                *model._sheet_kernel_tables, *model.nearest_line_tables)
+                float(model.junction_step_cam_px), float(max_fit_lines), z_lo, z_hi, float(trim_px), cam_tab, inv_step, K_cam, R, t,
+                model.index_min, model.sheet_nodes, iters, *model._sheet_kernel_tables, *model.nearest_line_tables)
+        elif fast:
+            # the pinhole camera: `sheet_check`'s NumPy path took these depths with `geometry.depth_cam`
+            lens, pos, s_all, k, ok, mid, zp, out, rr, length, ts_s, done_k = _k_predict_sheets(
+                fr, cand, count, first, last, sid, q, fam, ts, coef, rms, spacing, float(max_pred_lines), cam_tab, inv_step, K_cam,
+                R, t, model.index_min, model.sheet_nodes, iters, *model._sheet_kernel_tables, *model.nearest_line_tables)
+            zz = depth_cam(model.procam, out)
+            acc, write = _k_accept(lens, ok, zp, zz[: len(s_all)], zz[len(s_all):], mid, rr, length, float(model.junction_step_cam_px),
+                                   float(max_fit_lines), float(max_pred_lines), z_lo, z_hi, ts_s, float(trim_px))
         if not done_k:
             pc = cand[fr]
             lens = count[pc]
