@@ -602,6 +602,7 @@ def label_from_surface(
     max_offset: float = 1.0,
     max_fit_lines: float = 0.1,
     max_pred_lines: float = 0.25,
+    compiled: bool = True,
 ) -> dict:
     """Label unlabelled pieces that lie inside a labelled, locally plane surface which predicts their index
     (module doc).
@@ -613,7 +614,10 @@ def label_from_surface(
     (`labelling._sample_grid`, any cell size; its first seven entries are read). fit_radius_px: the
     neighbourhood's reach beyond the piece's half extent (camera px, about one junction step). max_offset:
     standard deviations (the square root of the Mahalanobis form). Returns counts: pieces and samples
-    labelled, pieces tried (summed over the rounds), pieces with a plane fit and with a prediction."""
+    labelled, pieces tried (summed over the rounds), pieces with a plane fit and with a prediction. compiled False:
+    the NumPy path for the neighbours' depths and the prediction even where the compiled calls apply
+    (`_k_needed_points`, `_k_predict_accept`, `_k_predict_sheets`: decision 0094), the reference they reproduce
+    bit for bit (tested)."""
     stats = {"pieces": 0, "samples": 0, "tried": 0, "fitted": 0, "predicted": 0}
     n = len(piece)
     if n == 0:
@@ -630,7 +634,7 @@ def label_from_surface(
     # (a camera table, or a camera without distortion: the pinhole inverse; the projector's OpenCV 5-coefficient model)
     cam_tab = model.cam_xy_table
     pinhole = cam_tab is None and not model.procam.camera.has_distortion
-    fast = (cam_tab is not None or pinhole) and model.procam.projector.dist.size <= 5
+    fast = compiled and (cam_tab is not None or pinhole) and model.procam.projector.dist.size <= 5
     if pinhole:
         cam_tab = np.zeros((0, 0, 2))
     inv_step = 1.0 / model.cam_table_px
