@@ -1789,10 +1789,10 @@ def project_nearest_line(p, family, K, dist, distorted, cu, cv, n12, offs, hyp, 
         if f != 1 and f != 2:
             continue
         z = p[a, 2]
+        if z <= 0:
+            continue  # NaN pixel: no line (tested before dividing: z = 0 exactly is a point in the projector's plane)
         x = p[a, 0] / z
         y = p[a, 1] / z
-        if z <= 0:
-            continue  # NaN pixel: no line
         if distorted:
             r2 = x * x + y * y
             radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
