@@ -18,7 +18,7 @@ in short passes over flat arrays inside one call, and `_k_segment_overlay` the o
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Literal
 
@@ -42,7 +42,8 @@ class ReconstructOptions:
     outside it are rejected, and points outside it are dropped. dense: also triangulate every line sample
     (ray–light-plane), not only the junctions. extract, label: the stages' own options (label's depth
     range is replaced by the one here), trace: how line samples inherit their line's index; crossing:
-    points through the crossings' gaps of lines labelled on both sides (decision 0086; default labeller only)."""
+    points through the crossings' gaps of lines labelled on both sides (decision 0086; default labeller only;
+    decision 0092's `trace.piece_junctions` is off with the paper labeller too)."""
 
     labeller: Literal["epipolar", "paper"] = "epipolar"
     depth_min_mm: float = 100.0
@@ -174,7 +175,12 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
     if options.dense and (lab.labels[:, 0] != UNLABELLED).any() and len(obs.q):
         sigma = float(obs.stats.get("sigma_px", sigma_for(model, options.extract)))
         seed_r = float(obs.stats.get("junction_radius_px", 0.4 * model.junction_step_cam_px))
-        sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=options.trace, model=model,
+        trace = options.trace
+        if options.labeller == "paper" and trace.piece_junctions:
+            # decision 0092's junctions at the crossings of pieces are labelled by the default labeller's machinery:
+            # the paper labeller's output stays the paper's method (its junctions, extended along the lines)
+            trace = replace(trace, piece_junctions=False)
+        sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=trace, model=model,
                            depth_range_mm=(options.depth_min_mm, options.depth_max_mm), image=image,
                            line_width_px=model.line_width_cam_px)
     cp = None

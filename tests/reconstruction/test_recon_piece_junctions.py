@@ -250,3 +250,28 @@ def test_nearest_hash_kernel_takes_the_nearest_node_within_the_radius():
     want = np.where(d.min(axis=1) < 3.0, d.argmin(axis=1), -1)
     assert np.array_equal(got, want)
     assert (got >= 0).sum() > 20
+
+
+def test_paper_labeller_runs_without_piece_junctions(monkeypatch):
+    """`--labeller paper` stays the paper's method: the pipeline does not build junctions at the crossings of
+    pieces (they are labelled by the default labeller's machinery), while the default labeller does."""
+    import reconstruction.labelling as L
+    from drivers.sim import RenderOptions, SimWorld, preset
+    from reconstruction.patterns import GridPattern
+    from reconstruction.pipeline import ReconstructOptions, reconstruct
+
+    seen = []
+    orig = L.label_samples
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["options"].piece_junctions)
+        return orig(*args, **kwargs)
+
+    monkeypatch.setattr("reconstruction.pipeline.label_samples", spy)
+    rig = preset("paper-parallel")
+    pattern = GridPattern()
+    image = SimWorld(rig, options=RenderOptions(noise_grey=1.0), seed=0).render(pattern.render(rig.procam.projector.width, rig.procam.projector.height))
+    for labeller in ("paper", "epipolar"):
+        reconstruct(image, rig.procam, pattern, options=ReconstructOptions(labeller=labeller, depth_min_mm=rig.depth_range_mm[0],
+                                                                           depth_max_mm=rig.depth_range_mm[1]))
+    assert seen == [False, True]
