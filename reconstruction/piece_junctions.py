@@ -1427,15 +1427,6 @@ def _k_select(ok_node, L, ed, a_j, b_j, fam_s, cand, labelled, first, last, ts, 
 
 
 @njit
-def _sign(x):
-    if x > 0.0:
-        return 1.0
-    if x < 0.0:
-        return -1.0
-    return x  # 0 and NaN as np.sign
-
-
-@njit
 def _k_write(sel, mom, tdir, L, ed, a_j, b_j, fam_s, cand, first, last, ts, q, sid, xy, trim_px, lateral, move, q_out, index, seed_jid):
     """Step 7's writes: the selected pieces (`_k_select`) take their nodes' index; their end samples (within
     trim_px of an end) are moved onto the piece's line (through the mean mom[:, :2] along tdir, the fit's unit
