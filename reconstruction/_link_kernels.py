@@ -18,6 +18,43 @@ from reconstruction._jit import njit
 
 
 @njit
+def _forward_cell(nb, cx, cy):
+    """The nb-th (0..4) of a cell and its forward neighbours: every pair of cells is visited once."""
+    if nb == 0:
+        return cx, cy
+    if nb == 1:
+        return cx + 1, cy
+    if nb == 2:
+        return cx - 1, cy + 1
+    if nb == 3:
+        return cx, cy + 1
+    return cx + 1, cy + 1
+
+
+@njit
+def _facing_pair(e, u, i0, j0, ex, ey, r2, cos_facing, lat2):
+    """The pair test of `facing_links_mid` for ends i0 (at ex, ey) and j0: (ok, i, j, swapped, g²), i < j the
+    end ids, swapped when i is j0; the gap vector runs from the lower end id to the higher (negation exact)."""
+    w0 = e[j0, 0] - ex
+    w1 = e[j0, 1] - ey
+    g2 = w0 * w0 + w1 * w1
+    if g2 >= r2:
+        return False, i0, j0, False, g2
+    if i0 < j0:
+        i, j, swap, v0, v1 = i0, j0, False, w0, w1
+    else:
+        i, j, swap, v0, v1 = j0, i0, True, -w0, -w1
+    if u[i, 0] * u[j, 0] + u[i, 1] * u[j, 1] >= -cos_facing:
+        return False, i, j, swap, g2
+    if v0 * u[i, 0] + v1 * u[i, 1] <= 0 or v0 * u[j, 0] + v1 * u[j, 1] >= 0:
+        return False, i, j, swap, g2
+    h = 0.5 * math.sqrt(g2)
+    d0 = (e[i, 0] + h * u[i, 0]) - (e[j, 0] + h * u[j, 0])
+    d1 = (e[i, 1] + h * u[i, 1]) - (e[j, 1] + h * u[j, 1])
+    return d0 * d0 + d1 * d1 <= lat2, i, j, swap, g2
+
+
+@njit
 def facing_links_mid(e, u, f_e, n_p, labelled, reach, lateral, cos_facing):
     """Pairs of piece ends (a, b piece ids, gap length, end ids i < j) of one family, on different pieces not
     both labelled, closer than reach, facing each other (directions more opposite than cos_facing), each
@@ -87,99 +124,29 @@ def facing_links_mid(e, u, f_e, n_p, labelled, reach, lateral, cos_facing):
                     lab0 = labelled[p0]
                     ex = e[i0, 0]
                     ey = e[i0, 1]
-                    if lab0:
-                        for nb in range(5):
-                            if nb == 0:
-                                xx, yy = cx, cy
-                            elif nb == 1:
-                                xx, yy = cx + 1, cy
-                            elif nb == 2:
-                                xx, yy = cx - 1, cy + 1
-                            elif nb == 3:
-                                xx, yy = cx, cy + 1
-                            else:
-                                xx, yy = cx + 1, cy + 1
-                            if xx < 0 or xx >= gw or yy >= gh:
-                                continue
-                            bn = base + yy * gw + xx
-                            for ut in range(ustart[bn], ustart[bn + 1]):
-                                t = upos[ut]
-                                if nb == 0 and t <= s:
-                                    continue
-                                j0 = items[t]
-                                p1 = j0 - n_p if j0 >= n_p else j0
-                                if p0 == p1:
-                                    continue
-                                w0 = e[j0, 0] - ex
-                                w1 = e[j0, 1] - ey
-                                g2 = w0 * w0 + w1 * w1
-                                if g2 >= r2:
-                                    continue
-                                if i0 < j0:
-                                    i, j, pi, pj, v0, v1 = i0, j0, p0, p1, w0, w1
-                                else:
-                                    i, j, pi, pj, v0, v1 = j0, i0, p1, p0, -w0, -w1
-                                if u[i, 0] * u[j, 0] + u[i, 1] * u[j, 1] >= -cos_facing:
-                                    continue
-                                if v0 * u[i, 0] + v1 * u[i, 1] <= 0 or v0 * u[j, 0] + v1 * u[j, 1] >= 0:
-                                    continue
-                                h = 0.5 * math.sqrt(g2)
-                                d0 = (e[i, 0] + h * u[i, 0]) - (e[j, 0] + h * u[j, 0])
-                                d1 = (e[i, 1] + h * u[i, 1]) - (e[j, 1] + h * u[j, 1])
-                                if d0 * d0 + d1 * d1 > lat2:
-                                    continue
-                                if nl == out_a.shape[0]:
-                                    break
-                                out_a[nl] = pi
-                                out_b[nl] = pj
-                                out_g[nl] = math.sqrt(g2)
-                                out_i[nl] = i
-                                out_j[nl] = j
-                                nl += 1
-                        continue
                     for nb in range(5):
-                        if nb == 0:
-                            xx, yy = cx, cy
-                        elif nb == 1:
-                            xx, yy = cx + 1, cy
-                        elif nb == 2:
-                            xx, yy = cx - 1, cy + 1
-                        elif nb == 3:
-                            xx, yy = cx, cy + 1
-                        else:
-                            xx, yy = cx + 1, cy + 1
+                        xx, yy = _forward_cell(nb, cx, cy)
                         if xx < 0 or xx >= gw or yy >= gh:
                             continue
                         bn = base + yy * gw + xx
-                        t0 = s + 1 if nb == 0 else start[bn]
-                        for t in range(t0, start[bn + 1]):
+                        # a labelled end reads only the unlabelled ends of the bucket (ustart/upos), others all
+                        lo = ustart[bn] if lab0 else (s + 1 if nb == 0 else start[bn])
+                        hi = ustart[bn + 1] if lab0 else start[bn + 1]
+                        for ut in range(lo, hi):
+                            t = upos[ut] if lab0 else ut
+                            if lab0 and nb == 0 and t <= s:
+                                continue
                             j0 = items[t]
                             p1 = j0 - n_p if j0 >= n_p else j0
-                            if p0 == p1 or (lab0 and labelled[p1]):
+                            if p0 == p1:
                                 continue
-                            # the gap vector from the lower end id to the higher (negation is exact)
-                            w0 = e[j0, 0] - ex
-                            w1 = e[j0, 1] - ey
-                            g2 = w0 * w0 + w1 * w1
-                            if g2 >= r2:
-                                continue
-                            if i0 < j0:
-                                i, j, pi, pj, v0, v1 = i0, j0, p0, p1, w0, w1
-                            else:
-                                i, j, pi, pj, v0, v1 = j0, i0, p1, p0, -w0, -w1
-                            if u[i, 0] * u[j, 0] + u[i, 1] * u[j, 1] >= -cos_facing:
-                                continue
-                            if v0 * u[i, 0] + v1 * u[i, 1] <= 0 or v0 * u[j, 0] + v1 * u[j, 1] >= 0:
-                                continue
-                            h = 0.5 * math.sqrt(g2)
-                            d0 = (e[i, 0] + h * u[i, 0]) - (e[j, 0] + h * u[j, 0])
-                            d1 = (e[i, 1] + h * u[i, 1]) - (e[j, 1] + h * u[j, 1])
-                            if d0 * d0 + d1 * d1 > lat2:
+                            ok, i, j, swap, g2 = _facing_pair(e, u, i0, j0, ex, ey, r2, cos_facing, lat2)
+                            if not ok:
                                 continue
                             if nl == out_a.shape[0]:
                                 break
-                            out_a[nl] = pi
-                            out_b[nl] = pj
+                            out_a[nl] = p1 if swap else p0
+                            out_b[nl] = p0 if swap else p1
                             out_g[nl] = math.sqrt(g2)
                             out_i[nl] = i
                             out_j[nl] = j
