@@ -63,17 +63,9 @@ import numpy as np
 from reconstruction import _extract_kernels as _ek
 from reconstruction._continuation_kernels import piece_ends
 from reconstruction._jit import njit
-from reconstruction._label_kernels import crossing_hits_traces
+from reconstruction._label_kernels import _union_find_root, crossing_hits_traces
 from reconstruction.piece_seeds import _SIN_MIN_CROSSING, _k_end_line, _k_refine
 from reconstruction.rigmodel import UNLABELLED, RigModel
-
-
-@njit
-def _find(parent, a):
-    while parent[a] != a:
-        parent[a] = parent[parent[a]]
-        a = parent[a]
-    return a
 
 
 @njit
@@ -84,7 +76,7 @@ def _k_number(parent):
     ids = np.full(n, -1, np.int64)
     m = 0
     for a in range(n):
-        r = _find(parent, a)
+        r = _union_find_root(parent, a)
         if ids[r] < 0:
             ids[r] = m
             m += 1
@@ -97,8 +89,8 @@ def _k_components(n, edges):
     """Connected components (numbered by their lowest member) of n items joined by edges (E, 2)."""
     parent = np.arange(n)
     for k in range(edges.shape[0]):
-        a = _find(parent, edges[k, 0])
-        b = _find(parent, edges[k, 1])
+        a = _union_find_root(parent, edges[k, 0])
+        b = _union_find_root(parent, edges[k, 1])
         if a != b:
             parent[max(a, b)] = min(a, b)
     return _k_number(parent)
@@ -140,8 +132,8 @@ def _k_cluster(c, radius):
                     dx = c[j, 0] - c[i, 0]
                     dy = c[j, 1] - c[i, 1]
                     if dx * dx + dy * dy < r2:
-                        a = _find(parent, i)
-                        bb = _find(parent, j)
+                        a = _union_find_root(parent, i)
+                        bb = _union_find_root(parent, j)
                         if a != bb:
                             parent[max(a, bb)] = min(a, bb)
     return _k_number(parent)
