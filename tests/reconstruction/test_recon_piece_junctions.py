@@ -11,17 +11,9 @@ import pytest
 
 from reconstruction.extraction import ExtractOptions, extract_grid, sigma_for
 from reconstruction.labelling import LabelOptions, TraceOptions, label_epipolar, label_samples
-from reconstruction.piece_junctions import (
-    _k_assoc_by_node,
-    _k_associate,
-    _k_cluster,
-    _k_cluster_hash,
-    _k_nearest_hash,
-    _k_components,
-    _label_piece_junctions_reference,
-    label_piece_junctions,
-)
+from reconstruction.piece_junctions import _k_assoc_by_node, _k_cluster_hash, _k_components, _k_nearest_hash, label_piece_junctions
 from reconstruction.rigmodel import UNLABELLED, rig_model
+from tests.reconstruction._piece_junctions_reference import _k_associate, _k_cluster, _label_piece_junctions_reference
 
 # the step (off by default) measured on its own: the steps that also fill a hole in the junction labels (the
 # continuation and decision 0089's piece seeds, both before it) off
@@ -196,8 +188,8 @@ def test_association_from_the_nodes_side_equals_the_ends_side():
 
 @pytest.mark.parametrize("which", ["hole", "pitch16", "missing_line"])
 def test_compiled_path_equals_the_reference_bit_for_bit(which, hole, small_scene_pitch16):
-    """The compiled path (the default options) writes the same index, seed junction and moved positions and
-    returns the same counts as `_label_piece_junctions_reference` on the same inputs (decision 0092, "Time")."""
+    """The compiled path writes the same index, seed junction and moved positions and returns the same counts as
+    the NumPy reference (`_piece_junctions_reference`, decision 0097; decision 0092, "Time") on the same inputs."""
     import reconstruction.labelling as L
 
     if which == "hole":
