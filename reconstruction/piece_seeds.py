@@ -44,7 +44,7 @@ import numpy as np
 
 from reconstruction._continuation_kernels import piece_ends
 from reconstruction._jit import njit
-from reconstruction._label_kernels import crossing_hits_traces
+from reconstruction._label_kernels import _as_int64, crossing_hits_traces
 from reconstruction.rigmodel import RigModel
 
 _SIN_MIN_CROSSING = float(np.sin(np.deg2rad(20.0)))  # the crossing searches' smallest crossing angle
@@ -105,6 +105,229 @@ def _k_refine(p_far, o_partner, rows, c, first, last, piece, ts, q, sid, trim_px
         c[i, 1] = ay + t * uy
 
 
+@njit
+def _k_round_ends(q, sid, piece, tangent, index, seed_jid, fam, n_p, anchor, min_samples):
+    """A round's start (decision 0096): `piece_ends`, the unlabelled pieces with at least min_samples samples
+    (cand (nc,), increasing), their two ends' rows (cand, then cand + n_p) gathered: E, U (2nc, 2), fe (2nc,)
+    int64 the ends' family, and end_pos (2n_p,). Formerly flatnonzero, concatenate and four gathers."""
+    e, u, end_pos, labelled, _, _ = piece_ends(q, sid, piece, tangent, index, seed_jid, n_p, anchor)
+    nc = 0
+    for p in range(n_p):
+        nc += (not labelled[p]) and (end_pos[n_p + p] - end_pos[p] + 1 >= min_samples)
+    cand = np.empty(nc, np.intp)
+    i = 0
+    for p in range(n_p):
+        if (not labelled[p]) and (end_pos[n_p + p] - end_pos[p] + 1 >= min_samples):
+            cand[i] = p
+            i += 1
+    E = np.empty((2 * nc, 2))
+    U = np.empty((2 * nc, 2))
+    fe = np.empty(2 * nc, np.int64)
+    for r in range(2 * nc):
+        row = cand[r] if r < nc else cand[r - nc] + n_p
+        E[r, 0] = e[row, 0]
+        E[r, 1] = e[row, 1]
+        U[r, 0] = u[row, 0]
+        U[r, 1] = u[row, 1]
+        fe[r] = fam[sid[end_pos[row]]]
+    return cand, E, U, fe, end_pos
+
+
+@njit
+def _k_near_hits(o, c, fe, index, sid):
+    """The ends with a labelled crossing (h: o ≥ 0), their crossing c[h], the other family 3 − fe[h] and the
+    labelled sample's line m (int64, as NumPy's cast)."""
+    R = o.shape[0]
+    nh = 0
+    for r in range(R):
+        nh += o[r] >= 0
+    h = np.empty(nh, np.intp)
+    ch = np.empty((nh, 2))
+    fo = np.empty(nh, np.int64)
+    m = np.empty(nh, np.int64)
+    i = 0
+    for r in range(R):
+        if o[r] < 0:
+            continue
+        h[i] = r
+        ch[i, 0] = c[r, 0]
+        ch[i, 1] = c[r, 1]
+        fo[i] = 3 - fe[r]
+        m[i] = _as_int64(index[sid[o[r]]])
+        i += 1
+    return h, ch, fo, m
+
+
+@njit
+def _k_one_sided(o, h, m, kk, res, z, tol, z_lo, z_hi, nc, E, U, fe):
+    """Step 1's verdicts: an end passes when its crossing's residual ≤ tol and depth lies in [z_lo, z_hi]; the
+    pieces with exactly one passing end whose other end has no labelled crossing (sel, increasing), their near
+    and far end rows, the near end's line k, the near end's line m_end, and the far ends' E, U, fe gathered."""
+    ok = np.zeros(2 * nc, np.bool_)
+    k_end = np.full(2 * nc, np.iinfo(np.int64).min, np.int64)
+    m_end = np.zeros(2 * nc, np.int64)
+    for i in range(h.shape[0]):
+        r = h[i]
+        ok[r] = (res[i] <= tol) and (z[i] >= z_lo) and (z[i] <= z_hi)
+        k_end[r] = kk[i]
+        m_end[r] = m[i]
+    ns = 0
+    for p in range(nc):
+        a_ok, b_ok = ok[p], ok[p + nc]
+        ns += (a_ok and o[p + nc] < 0) or (b_ok and o[p] < 0)
+    sel = np.empty(ns, np.intp)
+    near = np.empty(ns, np.intp)
+    far = np.empty(ns, np.intp)
+    k = np.empty(ns, np.int64)
+    mn = np.empty(ns, np.int64)
+    Ef = np.empty((ns, 2))
+    Uf = np.empty((ns, 2))
+    ff = np.empty(ns, np.int64)
+    i = 0
+    for p in range(nc):
+        a_ok, b_ok = ok[p], ok[p + nc]
+        if not ((a_ok and o[p + nc] < 0) or (b_ok and o[p] < 0)):
+            continue
+        sel[i] = p
+        near[i] = p if a_ok else p + nc
+        far[i] = p + nc if a_ok else p
+        k[i] = k_end[near[i]]
+        mn[i] = m_end[near[i]]
+        Ef[i, 0] = E[far[i], 0]
+        Ef[i, 1] = E[far[i], 1]
+        Uf[i, 0] = U[far[i], 0]
+        Uf[i, 1] = U[far[i], 1]
+        ff[i] = fe[far[i]]
+        i += 1
+    return sel, near, far, k, mn, Ef, Uf, ff
+
+
+@njit
+def _k_far_hits(o2, far, cand, n_p, nc, end_pos):
+    """The far ends with a crossing (g, int64), their trace positions (end_pos of the far end's row), the
+    partner's trace position o2[g] (int64) and the number without one."""
+    ng = 0
+    for r in range(o2.shape[0]):
+        ng += o2[r] >= 0
+    g = np.empty(ng, np.int64)
+    pf = np.empty(ng, np.int64)
+    og = np.empty(ng, np.int64)
+    i = 0
+    for r in range(o2.shape[0]):
+        if o2[r] < 0:
+            continue
+        g[i] = r
+        fr = far[r]
+        row = cand[fr] if fr < nc else cand[fr - nc] + n_p
+        pf[i] = end_pos[row]
+        og[i] = o2[r]
+        i += 1
+    return g, pf, og, o2.shape[0] - ng
+
+
+@njit
+def _k_far_gather(g, c2, ff, k):
+    """c2[g], ff[g], k[g] for step 2's check."""
+    n = g.shape[0]
+    cg = np.empty((n, 2))
+    fg = np.empty(n, np.int64)
+    kg = np.empty(n, np.int64)
+    for i in range(n):
+        cg[i, 0] = c2[g[i], 0]
+        cg[i, 1] = c2[g[i], 1]
+        fg[i] = ff[g[i]]
+        kg[i] = k[g[i]]
+    return cg, fg, kg
+
+
+@njit
+def _k_confirmed(g, res2, z2, m2, mn, tol, z_lo, z_hi, ns, confirm_far, sel, near, k, cand, first, last, q, sid, fam):
+    """Step 2's verdicts (good: the far crossing within tol of line m ± 1 inside the depth range; every piece when
+    not confirm_far), the number rejected, and step 3's inputs: the kept pieces' trace positions pos (one
+    block per piece, first to last), their owner (the kept piece's rank), the samples' q and family, the line
+    k[owner]; and per kept piece its near end's row and its line."""
+    good = np.zeros(ns, np.bool_)
+    if not confirm_far:
+        good[:] = True
+    n_rej = 0
+    if confirm_far:
+        for i in range(g.shape[0]):
+            r = g[i]
+            gd = (res2[i] <= tol) and (z2[i] >= z_lo) and (z2[i] <= z_hi) and (abs(m2[i] - mn[r]) == 1)
+            good[r] = gd
+            n_rej += not gd
+    nk = 0
+    tot = 0
+    for r in range(ns):
+        if good[r]:
+            p = cand[sel[r]]
+            tot += last[p] - first[p] + 1
+            nk += 1
+    pos = np.empty(tot, np.int64)
+    owner = np.empty(tot, np.int64)
+    qs = np.empty((tot, 2))
+    fs = np.empty(tot, np.int64)
+    ks = np.empty(tot, np.int64)
+    near_k = np.empty(nk, np.intp)
+    k_k = np.empty(nk, np.int64)
+    p_k = np.empty(nk, np.intp)
+    j = 0
+    w = 0
+    for r in range(ns):
+        if not good[r]:
+            continue
+        p = cand[sel[r]]
+        near_k[j] = near[r]
+        k_k[j] = k[r]
+        p_k[j] = p
+        for x in range(first[p], last[p] + 1):
+            pos[w] = x
+            owner[w] = j
+            s = sid[x]
+            qs[w, 0] = q[s, 0]
+            qs[w, 1] = q[s, 1]
+            fs[w] = fam[s]
+            ks[w] = k[r]
+            w += 1
+        j += 1
+    return n_rej, pos, owner, qs, fs, ks, near_k, k_k, p_k
+
+
+@njit
+def _k_write_pieces(pos, owner, zs, z_lo, z_hi, near_k, k_k, p_k, o, first, last, ts, sid, trim_px, index, seed_jid):
+    """Step 3: a kept piece whose samples all lie inside [z_lo, z_hi] on its sheet takes line k and its near
+    crossing's junction, except within trim_px of its ends (index, seed_jid written in place). Returns the
+    pieces and samples written."""
+    nk = near_k.shape[0]
+    all_in = np.ones(nk, np.bool_)
+    for w in range(pos.shape[0]):
+        if not ((zs[w] >= z_lo) and (zs[w] <= z_hi)):
+            all_in[owner[w]] = False
+    jv = np.empty(nk, np.int64)  # the near crossings' junctions, read before any write (as the former gather)
+    for j in range(nk):
+        jv[j] = seed_jid[sid[o[near_k[j]]]]
+    wrote = np.zeros(nk, np.bool_)
+    n_s = 0
+    for w in range(pos.shape[0]):
+        j = owner[w]
+        if not all_in[j]:
+            continue
+        p = p_k[j]
+        x = pos[w]
+        f0 = first[p]
+        l0 = last[p]
+        if min(ts[x] - ts[f0], ts[l0] - ts[x]) >= trim_px:
+            s = sid[x]
+            index[s] = k_k[j]
+            seed_jid[s] = jv[j]
+            wrote[j] = True
+            n_s += 1
+    n_p = 0
+    for j in range(nk):
+        n_p += wrote[j]
+    return n_p, n_s
+
+
 def seed_one_sided(
     q: np.ndarray,
     fam: np.ndarray,
@@ -146,77 +369,52 @@ def seed_one_sided(
         return stats
     n_p = int(piece[-1]) + 1
     z_lo, z_hi = float(depth_range_mm[0]), float(depth_range_mm[1])
+    tol = float(tol_px)
+    # Each step's NumPy masks, gathers and scatters are compiled passes between the crossing searches and the
+    # light-sheet checks (decision 0096: the same values in the same order).
     for _ in range(rounds):
-        e, u, end_pos, labelled, _, _ = piece_ends(q, sid, piece, tangent, index, seed_jid, n_p, int(anchor))
+        cand, E, U, fe, end_pos = _k_round_ends(q, sid, piece, tangent, index, seed_jid, fam, n_p, int(anchor), int(min_samples))
         first, last = end_pos[:n_p], end_pos[n_p:]
-        count = last - first + 1
-        cand = np.flatnonzero(~labelled & (count >= min_samples))
         nc = len(cand)
         if nc == 0:
             break
-        rows = np.concatenate((cand, cand + n_p))
-        E = np.ascontiguousarray(e[rows])
-        U = np.ascontiguousarray(u[rows])
-        fe = fam[sid[end_pos[rows]]].astype(np.int64)
         # 1. each end's crossing with the nearest labelled sample of the other family, checked on its sheet m
         o, c = crossing_hits_traces(E, U, np.ones(2 * nc), fe, q, sid, tangent, fam, index, True, float(radius_px),
                                     _SIN_MIN_CROSSING, *grid)
-        hit = o >= 0
-        k_end = np.full(2 * nc, np.iinfo(np.int64).min, np.int64)
-        m_end = np.zeros(2 * nc, np.int64)
-        ok = np.zeros(2 * nc, bool)
-        h = np.flatnonzero(hit)
+        h, ch, fo, m = _k_near_hits(o, c, fe, index, sid)
         if len(h) == 0:
             break
-        m = index[sid[o[h]]].astype(np.int64)
-        _, z, kk, res = model.sheet_check(c[h], 3 - fe[h], m)
-        ok[h] = (res <= tol_px) & (z >= z_lo) & (z <= z_hi)
-        k_end[h] = kk
-        m_end[h] = m
+        _, z, kk, res = model.sheet_check(ch, fo, m)
         # exactly one end checked; the other end has no labelled crossing at all
-        a_ok, b_ok = ok[:nc], ok[nc:]
-        a_hit, b_hit = hit[:nc], hit[nc:]
-        one = (a_ok & ~b_hit) | (b_ok & ~a_hit)
-        sel = np.flatnonzero(one)
-        if len(sel) == 0:
+        sel, near, far, k, m_near, E_far, U_far, fe_far = _k_one_sided(o, h, m, kk, res, z, tol, z_lo, z_hi, nc, E, U, fe)
+        ns = len(sel)
+        if ns == 0:
             break
-        near = np.where(a_ok[sel], sel, sel + nc)
-        far = np.where(a_ok[sel], sel + nc, sel)
-        k = k_end[near]
         # 2. the far end's crossing with any sample of the other family, checked on sheet k: the next line
-        o2, c2 = crossing_hits_traces(np.ascontiguousarray(E[far]), np.ascontiguousarray(U[far]), np.ones(len(far)), fe[far], q, sid,
-                                      tangent, fam, index, False, float(radius_px), _SIN_MIN_CROSSING, *grid)
-        has2 = o2 >= 0
-        stats["far_missing"] += int(np.sum(~has2))
-        good = np.zeros(len(sel), bool) if confirm_far else np.ones(len(sel), bool)
-        g = np.flatnonzero(has2)
+        o2, c2 = crossing_hits_traces(E_far, U_far, np.ones(ns), fe_far, q, sid, tangent, fam, index, False, float(radius_px),
+                                      _SIN_MIN_CROSSING, *grid)
+        g, p_far, o_partner, n_missing = _k_far_hits(o2, far, cand, n_p, nc, end_pos)
+        stats["far_missing"] += int(n_missing)
+        res2 = z2 = m2 = np.zeros(0)
         if len(g) and confirm_far:
             if refine:
-                _k_refine(np.ascontiguousarray(end_pos[rows[far[g]]], np.int64), np.ascontiguousarray(o2[g], np.int64), g.astype(np.int64),
-                          c2, first, last, piece, ts, q, sid, float(trim_px), int(anchor))
-            _, z2, m2, res2 = model.sheet_check(c2[g], fe[far[g]], k[g])
-            good[g] = (res2 <= tol_px) & (z2 >= z_lo) & (z2 <= z_hi) & (np.abs(m2 - m_end[near[g]]) == 1)
-            stats["far_rejected"] += int(len(g) - good[g].sum())
-        sel, near, k = sel[good], near[good], k[good]
-        if len(sel) == 0:
+                _k_refine(p_far, o_partner, g, c2, first, last, piece, ts, q, sid, float(trim_px), int(anchor))
+            c_g, f_g, k_g = _k_far_gather(g, c2, fe_far, k)
+            _, z2, m2, res2 = model.sheet_check(c_g, f_g, k_g)
+        elif confirm_far:
+            g = np.zeros(0, np.int64)
+        n_rej, pos, owner, q_pos, f_pos, k_pos, near_k, k_k, p_k = _k_confirmed(
+            g, res2, z2, np.asarray(m2, np.int64), m_near, tol, z_lo, z_hi, ns, bool(confirm_far), sel, near, k, cand, first, last, q, sid, fam)
+        stats["far_rejected"] += int(n_rej)
+        if len(near_k) == 0:
             break
-        # 3. the piece's samples inside the working volume on sheet k
-        p_sel = cand[sel]
-        lens = count[p_sel]
-        pos = np.repeat(first[p_sel], lens) + (np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens))
-        owner = np.repeat(np.arange(len(p_sel)), lens)
-        _, zs, _, _ = model.sheet_check(q[sid[pos]], fam[sid[pos]], k[owner])
-        inside = (zs >= z_lo) & (zs <= z_hi)
-        all_in = np.bincount(owner, weights=~inside, minlength=len(p_sel)) == 0
-        # write, leaving out the samples within trim_px of the piece's ends
-        jv = seed_jid[sid[o[near]]]
-        f0, l0 = first[p_sel][owner], last[p_sel][owner]
-        keep = all_in[owner] & (np.minimum(ts[pos] - ts[f0], ts[l0] - ts[pos]) >= trim_px)
-        w = pos[keep]
-        if len(w) == 0:
+        # 3. the piece's samples inside the working volume on sheet k (their depth alone: `sheet_depth`, equal to
+        # `sheet_check`'s to the bit, decision 0094); written, leaving out the samples within trim_px of the ends
+        zs = model.sheet_depth(q_pos, f_pos, k_pos)
+        n_pieces, n_samples = _k_write_pieces(pos, owner, zs, z_lo, z_hi, near_k, k_k, p_k, o, first, last, ts, sid,
+                                              float(trim_px), index, seed_jid)
+        if n_samples == 0:
             break
-        index[sid[w]] = k[owner[keep]]
-        seed_jid[sid[w]] = jv[owner[keep]]
-        stats["pieces"] += int(np.unique(owner[keep]).size)
-        stats["samples"] += int(len(w))
+        stats["pieces"] += int(n_pieces)
+        stats["samples"] += int(n_samples)
     return stats
