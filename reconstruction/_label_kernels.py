@@ -2633,3 +2633,69 @@ def epipolar_from_rays(d, t):
         out[n, 1] = c1 / nm
         out[n, 2] = c2 / nm
     return out
+
+
+# --- label stage round seven (decision 0096) ------------------------------------------------------------------
+
+
+@njit
+def offset_choice_groups(order, bounds, min_component, rel, ln, xy_cam, xy_junction, index_min, index_max, fx, n_refs,
+                         band_px, min_inside, cap2, R, t, z_min, z_max, outlier_sigma, max_residual_px):
+    """`offset_choice` for every component of label_epipolar's first round at once (decision 0096): group g's
+    members order[bounds[g]:bounds[g + 1]] (increasing), skipped (status −1) when fewer than min_component.
+    Each group's rel, ln and xy_cam rows are gathered as the former `_choose_offset` gathered them and
+    passed to `offset_choice`. Returns per group status, n_fail, ok, s1, s2, n_eff, off_best (G, 2) and the
+    outlier limit (`labelling._outlier_limit` of r_full, NaN unless ok), and per member (in order's order)
+    r_full and inside (written where ok)."""
+    G = bounds.shape[0] - 1
+    n = order.shape[0]
+    status = np.full(G, -1, np.int64)
+    n_fail = np.zeros(G, np.int64)
+    ok = np.zeros(G, np.bool_)
+    s1 = np.zeros(G)
+    s2 = np.zeros(G)
+    n_eff = np.zeros(G, np.int64)
+    off = np.zeros((G, 2), np.int64)
+    limit = np.full(G, np.nan)
+    r_all = np.full(n, np.nan)
+    in_all = np.zeros(n, np.bool_)
+    for g in range(G):
+        b0 = bounds[g]
+        m = bounds[g + 1] - b0
+        if m < min_component:
+            continue
+        rg = np.empty((m, 2), np.int64)
+        lg = np.empty((m, 3))
+        xg = np.empty((m, 2))
+        for a in range(m):
+            i = order[b0 + a]
+            rg[a, 0] = rel[i, 0]
+            rg[a, 1] = rel[i, 1]
+            lg[a, 0] = ln[i, 0]
+            lg[a, 1] = ln[i, 1]
+            lg[a, 2] = ln[i, 2]
+            xg[a, 0] = xy_cam[i, 0]
+            xg[a, 1] = xy_cam[i, 1]
+        st, nf, okg, a1, a2, ne, ob, r_full, inside = offset_choice(rg, lg, xg, xy_junction, index_min, index_max, fx, n_refs,
+                                                                   band_px, min_inside, cap2, R, t, z_min, z_max)
+        status[g] = st
+        n_fail[g] = nf
+        ok[g] = okg
+        s1[g] = a1
+        s2[g] = a2
+        n_eff[g] = ne
+        off[g, 0] = ob[0]
+        off[g, 1] = ob[1]
+        if okg:
+            for a in range(m):
+                r_all[b0 + a] = r_full[a]
+                in_all[b0 + a] = inside[a]
+            # labelling._outlier_limit: max(outlier_sigma·σ̂, max_residual_px), σ̂ = 1.4826·median (inf when none),
+            # with Python's max (the first argument unless the second is larger)
+            med = median_finite(r_full)
+            sigma_hat = 1.4826 * med if math.isfinite(med) else np.inf
+            lim = outlier_sigma * sigma_hat
+            if max_residual_px > lim:
+                lim = max_residual_px
+            limit[g] = lim
+    return status, n_fail, ok, s1, s2, n_eff, off, limit, r_all, in_all

@@ -154,6 +154,17 @@ def _groups(comp: np.ndarray) -> list[np.ndarray]:
     return [order[bounds[k] : bounds[k + 1]] for k in range(len(bounds) - 1)]
 
 
+def _group_bounds(comp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`_groups` as one array: order (M,) intp, the members of every group by increasing id, and bounds (G + 1,)
+    intp, group g being order[bounds[g]:bounds[g + 1]] (the same groups in the same order)."""
+    comp = np.asarray(comp)
+    order, bounds = _k.group_order(np.ascontiguousarray(comp, np.int64)) if len(comp) else (np.zeros(0, np.intp), np.zeros(1, np.intp))
+    if len(bounds) == 0:
+        order = np.argsort(comp, kind="stable")
+        bounds = np.flatnonzero(np.diff(np.concatenate([[-1], comp[order], [-2]])))
+    return order, bounds
+
+
 @dataclass
 class _Choice:
     """The outcome of scoring one component's offsets."""
@@ -184,6 +195,12 @@ def _choose_offset(
         rel, ln, xy_cam, model.xy_junction, int(model.index_min), int(model.index_max), float(model.fx_proj),
         int(options.candidate_refs), float(options.candidate_band_px), float(options.min_inside_fraction), float(cap2),
         model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm))
+    return _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside)
+
+
+def _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside,
+               limit=None) -> _Choice:
+    """`_choose_offset`'s tests on `offset_choice`'s results (limit: `_outlier_limit(r_full)` when known)."""
     if status != 0:
         if status >= 2:
             stats["out_of_pattern"] += 1
@@ -199,7 +216,7 @@ def _choose_offset(
     if n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2 or s2 < options.min_rms_ratio**2 * sigma2:
         # A component that mixes two surfaces (a bad edge) looks ambiguous as a whole: each offset fits one
         # part. Judge the best offset on its own inliers; if it wins there, the rest is split off later.
-        inl = np.isfinite(r_full) & (r_full <= _outlier_limit(r_full, options))
+        inl = np.isfinite(r_full) & (r_full <= (_outlier_limit(r_full, options) if limit is None else limit))
         if not _inlier_retry or inl.all() or inl.sum() < options.min_split_component:
             return _Choice("ambiguous", rms=rms)
         sub = _choose_offset(model, rel[inl], ln[inl], xy_cam[inl], options, stats, _inlier_retry=False)
@@ -242,12 +259,21 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     lines = _k.epipolar_from_rays(camera_rays_proj(model.procam, xy_cam), model.t_proj_cam_c)
     component = comp.copy()
     next_id = int(comp.max()) + 1 if M else 0
-    groups = _groups(comp)
-    stats["components"] = len(groups)
-    # Work list: (members, split round). Pieces split off are relabelled on their own.
-    work = [(g, 0) for g in groups]
+    groups = _group_bounds(comp)
+    stats["components"] = len(groups[1]) - 1
+    # The first round's offsets of every component in one compiled call (decision 0096): the same gathers and
+    # `offset_choice` per component as `_choose_offset`, and the accepted ones' outlier limits.
+    order, bounds = groups
+    g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, g_limit, g_r, g_in = _k.offset_choice_groups(
+        order, bounds, int(options.min_component), rel, lines, np.ascontiguousarray(xy_cam, np.float64), model.xy_junction,
+        int(model.index_min), int(model.index_max), float(model.fx_proj), int(options.candidate_refs),
+        float(options.candidate_band_px), float(options.min_inside_fraction), float(options.residual_cap_px**2),
+        model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm),
+        float(options.outlier_sigma), float(options.max_residual_px))
+    # Work list: (members, split round, first-round group or −1). Pieces split off are relabelled on their own.
+    work = [(order[bounds[g] : bounds[g + 1]], 0, g) for g in range(len(bounds) - 1)]
     while work:
-        members, rounds = work.pop()
+        members, rounds, g = work.pop()
         m = len(members)
         if rounds == 0 and m < options.min_component:
             left["component_too_small"] += m
@@ -256,7 +282,16 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         if rounds > 0 and m < options.min_split_component:
             left["split_too_small"] += m
             continue
-        ch = _choose_offset(model, rel[members], lines[members], xy_cam[members], options, stats)
+        limit = None
+        if g >= 0:
+            b0, b1 = bounds[g], bounds[g + 1]
+            ok_g = bool(g_ok[g])
+            ch = _choice_of(model, rel[members] if ok_g else None, lines[members] if ok_g else None, xy_cam[members] if ok_g else None,
+                            options, stats, True, int(g_status[g]), g_fail[g], ok_g, g_s1[g], g_s2[g], int(g_neff[g]),
+                            g_off[g], g_r[b0:b1] if ok_g else None, g_in[b0:b1] if ok_g else None, g_limit[g])
+            limit = float(g_limit[g])
+        else:
+            ch = _choose_offset(model, rel[members], lines[members], xy_cam[members], options, stats)
         if ch.reason is not None:
             left[ch.reason] += m
             if ch.reason == "ambiguous":
@@ -265,7 +300,8 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         r = ch.residual
         # the inliers (finite residual within the outlier limit, inside the depth range) take their labels:
         # one compiled pass (decision 0087)
-        bad, n_bad = _k.write_component(members, ch.labels, r, ch.inside, float(_outlier_limit(r, options)), labels, residual)
+        bad, n_bad = _k.write_component(members, ch.labels, r, ch.inside, float(_outlier_limit(r, options)) if limit is None else limit,
+                                        labels, residual)
         stats["components_labelled"] += 1
         if n_bad == 0:
             continue
@@ -288,7 +324,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         for g in _groups(sub_comp):
             component[outl[g]] = next_id
             next_id += 1
-            work.append((outl[g], rounds + 1))
+            work.append((outl[g], rounds + 1, -1))
     stats["junctions_left_out"] = left
     return Labels(labels, residual, component, stats)
 
