@@ -252,9 +252,15 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     if M == 0:
         stats["junctions_left_out"] = left
         return Labels(labels, residual, np.zeros(0, np.int64), stats)
-    edges, delta, removed = clean_edges(M, obs.edges, obs.edge_delta)
-    stats["contradicting_edges"] = removed
-    rel, comp = _propagate(M, edges, delta)
+    # `clean_edges` then `_propagate` on the kept edges, with the edge arrays made once: the walk takes the kept
+    # edges in their order (`propagate`'s keep), as it took the filtered copy (decision 0096)
+    edges_all = np.asarray(obs.edges, np.int64).reshape(-1, 2)
+    delta_all = np.asarray(obs.edge_delta, np.int64).reshape(-1, 2)
+    e_arrays = _edge_arrays(edges_all, delta_all)
+    keep, removed = _k.clean_edges(int(M), *e_arrays, 2)
+    stats["contradicting_edges"] = int(removed)
+    rel, comp = _k.propagate(int(M), *e_arrays, keep)
+    edges = delta = None  # the kept edges, made when a component is split
     # `epipolar_lines`, its cross product and scaling compiled (decision 0094)
     lines = _k.epipolar_from_rays(camera_rays_proj(model.procam, xy_cam), model.t_proj_cam_c)
     component = comp.copy()
@@ -312,6 +318,8 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             left["out_of_depth_range"] += int((bad & ~ch.inside).sum())
             continue
         stats["components_split"] += 1
+        if edges is None:
+            edges, delta = edges_all[keep], delta_all[keep]
         # edges between two outliers, renumbered by the outliers' sorted order (a lookup table, not np.isin)
         srt = np.sort(outl)
         pos_of = np.full(M, -1, np.intp)
