@@ -124,10 +124,13 @@ def _k_continues(pts, dirs, fams, q, fam, reach, lateral, x0, y0, cell, gw, gh, 
     """For each query (point pts[i], unit direction dirs[i], family fams[i]): is there a sample of that family on
     a trace piece (outside every mixing zone) ahead of the point, 0 < along ≤ reach, within lateral of the
     line? The line goes on through the point (an X), it does not stop there (a T). Samples from the frame's
-    bucket grid (`_label_kernels.sample_grid`)."""
+    bucket grid (`_label_kernels.sample_grid`; with `sample_grid_split`'s layout, start of length 2·gw·gh + 1,
+    only the query's family's part of each cell is read)."""
     n = pts.shape[0]
     out = np.zeros(n, np.bool_)
     ring = int(math.ceil(reach / cell))
+    G = gw * gh
+    split = start.shape[0] == 2 * G + 1
     for i in range(n):
         px = pts[i, 0]
         py = pts[i, 1]
@@ -140,7 +143,14 @@ def _k_continues(pts, dirs, fams, q, fam, reach, lateral, x0, y0, cell, gw, gh, 
                 if out[i]:
                     break
                 b = yy * gw + xx
-                for t in range(start[b], start[b + 1]):
+                t0 = start[b]
+                t1 = start[b + 1]
+                if split:
+                    if fams[i] == 1:
+                        t1 = start[G + 1 + b]
+                    else:
+                        t0 = start[G + 1 + b]
+                for t in range(t0, t1):
                     s = items[t]
                     if fam[s] != fams[i] or pos_of[s] < 0:
                         continue
@@ -181,15 +191,14 @@ def _k_node_ends(node_end, E, U, fe, xy, lateral):
 
 
 @njit
-def _k_end_pairs_f(E, U, pos, first, last, piece, ts, qt, trim_px, anchor, fe, rows, radius, sin_min):
+def _k_end_pairs_f(E, U, pos, first, last, piece, ts, q, sid, trim_px, anchor, fe, rows, radius, sin_min):
     """The crossing at each end rows[i]: among the ends of the other family within radius of its end sample
     E (R, 2), the intersection of the two end lines that lies ahead of both ends (along their outward
     directions, from −1 px to radius) and nearest to this end; lines meeting at a sine below sin_min are
     skipped. An end's line lies beyond the crossing's pull (`piece_seeds._k_end_line` of trace position
     pos[r]: from the first sample trim_px inside the end, along the chord `anchor` samples further in), or is
     the end sample and its outward direction U where the piece is too short; computed when first needed.
-    The ends are bucketed in one grid per family (cells radius wide); the end lines read the trace-ordered
-    positions qt (n, 2: qt[j] = q[sid[j]]). Returns the partner end (−1: none) and the crossing c (n, 2).
+    The ends are bucketed in one grid per family (cells radius wide); the end lines read q (P, 2) through sid. Returns the partner end (−1: none) and the crossing c (n, 2).
     (The reference's `_k_end_pairs`, one grid for both families, gives the same results: decision 0097.)"""
     R = E.shape[0]
     n = rows.shape[0]
@@ -241,8 +250,7 @@ def _k_end_pairs_f(E, U, pos, first, last, piece, ts, qt, trim_px, anchor, fe, r
                     for zz in range(2):
                         z = r if zz == 0 else o
                         if not done[z]:
-                            # `piece_seeds._k_end_line` written out (a call per end costs more than the line),
-                            # on the trace-ordered positions qt (qt[j] = q[sid[j]])
+                            # `piece_seeds._k_end_line` written out (a call per end costs more than the line)
                             ok = False
                             p_end = pos[z]
                             pz = piece[p_end]
@@ -258,10 +266,10 @@ def _k_end_pairs_f(E, U, pos, first, last, piece, ts, qt, trim_px, anchor, fe, r
                                     if j2 == stop:
                                         break
                                     j2 += step
-                                ax = qt[j, 0]
-                                ay = qt[j, 1]
-                                dx = ax - qt[j2, 0]
-                                dy = ay - qt[j2, 1]
+                                ax = q[sid[j], 0]
+                                ay = q[sid[j], 1]
+                                dx = ax - q[sid[j2], 0]
+                                dy = ay - q[sid[j2], 1]
                                 Ln = math.hypot(dx, dy)
                                 if Ln >= 1.5:
                                     ok = True
@@ -411,19 +419,18 @@ def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_
     # `piece_ends`, without reading every sample of the labelled pieces)
     first = np.full(n_p, -1, np.int64)
     last = np.full(n_p, -1, np.int64)
-    for k in range(piece.shape[0]):
+    labelled = np.zeros(n_p, np.bool_)
+    val = np.full(n_p, np.nan)
+    for k in range(piece.shape[0]):  # one pass; a labelled piece's index is not read past its first labelled sample
         p = piece[k]
         if first[p] < 0:
             first[p] = k
         last[p] = k
-    labelled = np.zeros(n_p, np.bool_)
-    val = np.full(n_p, np.nan)
-    for p in range(n_p):
-        for k in range(first[p], last[p] + 1):
-            if math.isfinite(index[sid[k]]):
+        if not labelled[p]:
+            v = index[sid[k]]
+            if math.isfinite(v):
                 labelled[p] = True
-                val[p] = index[sid[k]]
-                break
+                val[p] = v
     nc = 0
     for p in range(n_p):
         if last[p] - first[p] + 1 >= min_samples:
@@ -434,10 +441,6 @@ def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_
         if last[p] - first[p] + 1 >= min_samples:
             cand[m] = p
             m += 1
-    qt = np.empty((sid.shape[0], 2))  # the positions in trace order (the end lines read them in sequence)
-    for j in range(sid.shape[0]):
-        qt[j, 0] = q[sid[j], 0]
-        qt[j, 1] = q[sid[j], 1]
     R = 2 * nc
     E = np.empty((R, 2))
     U = np.empty((R, 2))
@@ -456,10 +459,10 @@ def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_
             k = last[p]
             a = max(k - anchor, first[p])
             sgn = 1.0
-        E[r, 0] = qt[k, 0]
-        E[r, 1] = qt[k, 1]
-        d0 = E[r, 0] - qt[a, 0]
-        d1 = E[r, 1] - qt[a, 1]
+        E[r, 0] = q[sid[k], 0]
+        E[r, 1] = q[sid[k], 1]
+        d0 = E[r, 0] - q[sid[a], 0]
+        d1 = E[r, 1] - q[sid[a], 1]
         Ln = math.sqrt(d0 * d0 + d1 * d1)
         if Ln >= 1.5:
             U[r, 0] = d0 / Ln
@@ -488,7 +491,7 @@ def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_
         if unl[r]:
             srch[m] = r
             m += 1
-    part, cs = _k_end_pairs_f(E, U, ep, first, last, piece, ts, qt, trim_px, anchor, fe, srch, reach, sin_min)
+    part, cs = _k_end_pairs_f(E, U, ep, first, last, piece, ts, q, sid, trim_px, anchor, fe, srch, reach, sin_min)
     nh = 0
     for i in range(ns):
         if part[i] >= 0:

@@ -69,7 +69,7 @@ def _k_open_pieces(sid, piece, index, q, n_p, min_samples):
         if first[p] < 0:
             first[p] = k
         last[p] = k
-        if math.isfinite(index[sid[k]]):
+        if not lab[p] and math.isfinite(index[sid[k]]):  # a labelled piece's index is not read past its first label
             lab[p] = True
     m = 0
     for p in range(n_p):
@@ -116,37 +116,46 @@ def _k_cell_box(cx, cy, R, x0, y0, cell, gw, gh):
 
 @njit
 def _k_cell_sums(q, index, cen, rad, x0, y0, cell, gw, gh, start, items):
-    """Per grid cell, over its labelled samples (finite index): count, Σx, Σy, Σx², Σxy, Σy² (camera px),
-    (gw·gh, 6); only the cells of the neighbourhoods of the centres cen (n, 2) (half sides rad, `_k_cell_box`)
-    are summed, the others stay zero."""
-    out = np.zeros((gw * gh, 6))
-    used = np.zeros(gw * gh, np.bool_)
+    """Per grid cell of the neighbourhoods of the centres cen (n, 2) (half sides rad, `_k_cell_box`), over its
+    labelled samples (finite index): count, Σx, Σy, Σx², Σxy, Σy² (camera px). Returns slot (gw·gh,), the row
+    of a cell in sums (−1: in no neighbourhood, never read), and sums (m, 6) (decision 0097: a frame-wide
+    (gw·gh, 6) table was ~0.7 MB to clear per call)."""
+    G = gw * gh
+    slot = np.full(G, -1, np.int64)
     for r in range(cen.shape[0]):
         gx0, gx1, gy0, gy1 = _k_cell_box(cen[r, 0], cen[r, 1], rad[r], x0, y0, cell, gw, gh)
         for yy in range(gy0, gy1 + 1):
             for xx in range(gx0, gx1 + 1):
-                used[yy * gw + xx] = True
-    for b in range(gw * gh):
-        if not used[b]:
+                slot[yy * gw + xx] = 0
+    m = 0
+    for b in range(G):
+        if slot[b] == 0:
+            slot[b] = m + 1  # (1-based while counting)
+            m += 1
+    out = np.zeros((m, 6))
+    for b in range(G):
+        sl = slot[b] - 1
+        slot[b] = sl
+        if sl < 0:
             continue
         for t in range(start[b], start[b + 1]):
             s = items[t]
             if math.isfinite(index[s]):
                 x = q[s, 0]
                 y = q[s, 1]
-                out[b, 0] += 1.0
-                out[b, 1] += x
-                out[b, 2] += y
-                out[b, 3] += x * x
-                out[b, 4] += x * y
-                out[b, 5] += y * y
-    return out
+                out[sl, 0] += 1.0
+                out[sl, 1] += x
+                out[sl, 2] += y
+                out[sl, 3] += x * x
+                out[sl, 4] += x * y
+                out[sl, 5] += y * y
+    return slot, out
 
 
 @njit
-def _k_support(cen, rad, sums, dirty, x0, y0, cell, gw, gh):
+def _k_support(cen, rad, slot, sums, dirty, x0, y0, cell, gw, gh):
     """Per piece centre cen[r]: its neighbourhood's labelled samples (the grid cells the square of half side
-    rad[r] touches, from the per-cell sums of `_k_cell_sums`): their count, the smaller principal spread
+    rad[r] touches, from the per-cell sums of `_k_cell_sums`, slot and sums; every such cell has a slot): their count, the smaller principal spread
     (camera px, square root of the smaller eigenvalue of their covariance) and offset2, the Mahalanobis form
     of the centre against their centroid in that covariance (inf when singular or fewer than 3). Centres
     whose cells include none marked in dirty (gw·gh, bool: where labels changed since the last call) are
@@ -165,12 +174,13 @@ def _k_support(cen, rad, sums, dirty, x0, y0, cell, gw, gh):
             for xx in range(gx0, gx1 + 1):
                 b = yy * gw + xx
                 changed |= dirty[b]
-                m += sums[b, 0]
-                sx += sums[b, 1]
-                sy += sums[b, 2]
-                sxx += sums[b, 3]
-                sxy += sums[b, 4]
-                syy += sums[b, 5]
+                sl = slot[b]
+                m += sums[sl, 0]
+                sx += sums[sl, 1]
+                sy += sums[sl, 2]
+                sxx += sums[sl, 3]
+                sxy += sums[sl, 4]
+                syy += sums[sl, 5]
         if not changed:
             continue
         cnt[r] = int(m)
@@ -546,10 +556,10 @@ def _k_predict_accept(fr, cand, count, first, last, sid, q, fam, ts, coef, rms, 
 
 
 @njit
-def _k_write(lens, write, k, near, s_all, q, index, seed_jid, sums, dirty, x0, y0, cell, gw, gh):
+def _k_write(lens, write, k, near, s_all, q, index, seed_jid, slot, sums, dirty, x0, y0, cell, gw, gh):
     """Writes the accepted samples (write (N,), in the order of s_all, lens (m,) per piece): index k of their
     piece, seed_jid of its nearest labelled neighbour near[i]; marks their grid cells in dirty (cleared first)
-    and adds them to the per-cell sums (`_k_cell_sums`). Returns the pieces written (bool (m,)) and the number
+    and adds them to the per-cell sums (`_k_cell_sums`: slot, sums; a cell without a slot is never read). Returns the pieces written (bool (m,)) and the number
     of samples."""
     dirty[:] = False
     m = lens.shape[0]
@@ -569,12 +579,14 @@ def _k_write(lens, write, k, near, s_all, q, index, seed_jid, sums, dirty, x0, y
             gy = min(max(int(math.floor((y - y0) / cell)), 0), gh - 1)
             b = gy * gw + gx
             dirty[b] = True
-            sums[b, 0] += 1.0
-            sums[b, 1] += x
-            sums[b, 2] += y
-            sums[b, 3] += x * x
-            sums[b, 4] += x * y
-            sums[b, 5] += y * y
+            sl = slot[b]
+            if sl >= 0:
+                sums[sl, 0] += 1.0
+                sums[sl, 1] += x
+                sums[sl, 2] += y
+                sums[sl, 3] += x * x
+                sums[sl, 4] += x * y
+                sums[sl, 5] += y * y
             done[i] = True
             nw += 1
         r += lens[i]
@@ -623,6 +635,9 @@ def label_from_surface(
     if n == 0:
         return stats
     n_p = int(piece[-1]) + 1
+    first, last, cand_all, cen_all, ext_all = _k_open_pieces(sid, piece, index, q, n_p, int(min_samples))
+    if len(cand_all) == 0:
+        return stats
     z_lo, z_hi = float(depth_range_mm[0]), float(depth_range_mm[1])
     # each family's smallest line spacing, perpendicular to its lines (projector px)
     spacing = model.line_spacing_perp_px
@@ -639,24 +654,22 @@ def label_from_surface(
         cam_tab = np.zeros((0, 0, 2))
     inv_step = 1.0 / model.cam_table_px
     K_cam = np.ascontiguousarray(model.procam.camera.K, np.float64)
-    iters = 1 if model.procam.projector.has_distortion else 0
+    fixed = model._sheet_check_args  # (built once per rig; its entry 6 is the projector's undistortion iterations)
+    iters = fixed[6] if fixed is not None else (1 if model.procam.projector.has_distortion else 0)
     seen = np.zeros(len(q), np.bool_)  # samples whose depth was computed (or missed the sheet)
-    first, last, cand_all, cen_all, ext_all = _k_open_pieces(sid, piece, index, q, n_p, int(min_samples))
-    if len(cand_all) == 0:
-        return stats
     count = last - first + 1
     rad_all = ext_all + float(fit_radius_px)
     open_c = np.ones(len(cand_all), bool)
     x0, y0, cell, gw, gh, start, items = grid[:7]
     dirty = np.ones(gw * gh, np.bool_)  # the cells where labels changed: all at first
-    sums = _k_cell_sums(q, index, cen_all, rad_all, x0, y0, cell, gw, gh, start, items)  # per cell, its labelled samples
+    slot, sums = _k_cell_sums(q, index, cen_all, rad_all, x0, y0, cell, gw, gh, start, items)  # per cell, its labelled samples
     for _ in range(rounds):
         oc = np.flatnonzero(open_c)
         if len(oc) == 0:
             break
         stats["tried"] += len(oc)
         # 2. support on both sides (camera px only, before any depth is computed)
-        cnt, spread, offset2 = _k_support(cen_all[oc], rad_all[oc], sums, dirty, x0, y0, cell, gw, gh)
+        cnt, spread, offset2 = _k_support(cen_all[oc], rad_all[oc], slot, sums, dirty, x0, y0, cell, gw, gh)
         sup = oc[(cnt >= min_neighbours) & (spread >= min_spread * rad_all[oc]) & (offset2 <= max_offset * max_offset)]
         if len(sup) == 0:
             break
@@ -715,7 +728,7 @@ def label_from_surface(
                                    np.maximum(ts[last[pc]] - ts[first[pc]], 1.0), float(model.junction_step_cam_px),
                                    float(max_fit_lines), float(max_pred_lines), z_lo, z_hi, ts[pos], float(trim_px))
         stats["predicted"] += int(acc.sum())
-        done, nw = _k_write(lens, write, k, near[fr], s_all, q, index, seed_jid, sums, dirty, x0, y0, cell, gw, gh)
+        done, nw = _k_write(lens, write, k, near[fr], s_all, q, index, seed_jid, slot, sums, dirty, x0, y0, cell, gw, gh)
         if nw == 0:
             break
         open_c[sup[fr[done]]] = False

@@ -87,8 +87,8 @@ def test_support_against_direct_sums():
     index = np.where(q[:, 0] < 60.0, 2.0, np.nan)  # labelled left of x = 60
     cen = np.array([[30.0, 50.0], [62.0, 50.0]])
     rad = np.array([15.0, 15.0])
-    sums = _k_cell_sums(q, index, cen, rad, x0, y0, cell, gw, gh, start, items)
-    cnt, spread, offset2 = _k_support(cen, rad, sums, np.ones(gw * gh, bool), x0, y0, cell, gw, gh)
+    slot, sums = _k_cell_sums(q, index, cen, rad, x0, y0, cell, gw, gh, start, items)
+    cnt, spread, offset2 = _k_support(cen, rad, slot, sums, np.ones(gw * gh, bool), x0, y0, cell, gw, gh)
     for r in range(len(cen)):
         gx = np.floor((q[:, 0] - x0) / cell).astype(int)
         gy = np.floor((q[:, 1] - y0) / cell).astype(int)
@@ -103,7 +103,7 @@ def test_support_against_direct_sums():
         assert offset2[r] == pytest.approx(d @ np.linalg.solve(C, d), rel=1e-6)
     assert offset2[0] < 0.5 and offset2[1] > 2.0  # amid its neighbours / at the labelled region's edge
     # cells not marked as changed are skipped
-    cnt2, _, _ = _k_support(cen, rad, sums, np.zeros(gw * gh, bool), x0, y0, cell, gw, gh)
+    cnt2, _, _ = _k_support(cen, rad, slot, sums, np.zeros(gw * gh, bool), x0, y0, cell, gw, gh)
     assert np.all(cnt2 == 0)
 
 
