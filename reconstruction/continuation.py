@@ -197,6 +197,6 @@ def _check_pieces(cand, k_of, q, fam, sid, piece, tangent, e, u, f_e, model: Rig
     pos = samples_of(piece, flag)
     if len(pos):
         q_pos, f_pos, k_pos = check_samples(pos, q, sid, fam, piece, k_of)
-        _, z, _, _ = model.sheet_check(q_pos, f_pos, k_pos)
+        z = model.sheet_depth(q_pos, f_pos, k_pos)  # `sheet_check`'s z alone, to the bit (decisions 0094, 0096)
         check_depth(good, cand, pos, piece, z, float(depth_range_mm[0]), float(depth_range_mm[1]), n_p)
     return good
