@@ -2640,13 +2640,17 @@ def epipolar_from_rays(d, t):
 
 @njit
 def offset_choice_groups(order, bounds, min_component, rel, ln, xy_cam, xy_junction, index_min, index_max, fx, n_refs,
-                         band_px, min_inside, cap2, R, t, z_min, z_max, outlier_sigma, max_residual_px):
+                         band_px, min_inside, cap2, R, t, z_min, z_max, outlier_sigma, max_residual_px, noise_floor2, chi2,
+                         rms_ratio2, labels, residual):
     """`offset_choice` for every component of label_epipolar's first round at once (decision 0096): group g's
     members order[bounds[g]:bounds[g + 1]] (increasing), skipped (status −1) when fewer than min_component.
     Each group's rel, ln and xy_cam rows are gathered as the former `_choose_offset` gathered them and
     passed to `offset_choice`. Returns per group status, n_fail, ok, s1, s2, n_eff, off_best (G, 2) and the
     outlier limit (`labelling._outlier_limit` of r_full, NaN unless ok), and per member (in order's order)
-    r_full and inside (written where ok)."""
+    r_full and inside (written where ok). A group that passes `_choose_offset`'s ambiguity test (σ² = Python's
+    max(s1, noise_floor2); n_eff·(s2 − s1)/σ² ≥ chi2 and s2 ≥ rms_ratio2·σ²) is written at once as
+    `write_component` writes it (labels rel + off, residual, where not bad): written[g] True, its bad members
+    in bad (n,) and their number n_bad[g]; the ambiguous ones (the inlier retry) are left to the caller."""
     G = bounds.shape[0] - 1
     n = order.shape[0]
     status = np.full(G, -1, np.int64)
@@ -2659,6 +2663,9 @@ def offset_choice_groups(order, bounds, min_component, rel, ln, xy_cam, xy_junct
     limit = np.full(G, np.nan)
     r_all = np.full(n, np.nan)
     in_all = np.zeros(n, np.bool_)
+    written = np.zeros(G, np.bool_)
+    bad = np.zeros(n, np.bool_)
+    n_bad = np.zeros(G, np.int64)
     for g in range(G):
         b0 = bounds[g]
         m = bounds[g + 1] - b0
@@ -2698,4 +2705,23 @@ def offset_choice_groups(order, bounds, min_component, rel, ln, xy_cam, xy_junct
             if max_residual_px > lim:
                 lim = max_residual_px
             limit[g] = lim
-    return status, n_fail, ok, s1, s2, n_eff, off, limit, r_all, in_all
+            sigma2 = a1
+            if noise_floor2 > sigma2:
+                sigma2 = noise_floor2
+            if ne * (a2 - a1) / sigma2 < chi2 or a2 < rms_ratio2 * sigma2:
+                continue  # ambiguous as a whole: the caller retries on the inliers
+            written[g] = True
+            nb = 0
+            for a in range(m):
+                x = r_full[a]
+                b = (not math.isfinite(x)) or (x > lim) or (not inside[a])
+                bad[b0 + a] = b
+                if b:
+                    nb += 1
+                else:
+                    i = order[b0 + a]
+                    labels[i, 0] = rel[i, 0] + ob[0]
+                    labels[i, 1] = rel[i, 1] + ob[1]
+                    residual[i] = x
+            n_bad[g] = nb
+    return status, n_fail, ok, s1, s2, n_eff, off, limit, r_all, in_all, written, bad, n_bad

@@ -268,14 +268,17 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     groups = _group_bounds(comp)
     stats["components"] = len(groups[1]) - 1
     # The first round's offsets of every component in one compiled call (decision 0096): the same gathers and
-    # `offset_choice` per component as `_choose_offset`, and the accepted ones' outlier limits.
+    # `offset_choice` per component as `_choose_offset`, the accepted ones' outlier limits, and the components
+    # that pass the ambiguity test written as `write_component` writes them (labels are written only to a
+    # component's own members, so the order of the writes does not matter).
     order, bounds = groups
-    g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, g_limit, g_r, g_in = _k.offset_choice_groups(
+    g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, g_limit, g_r, g_in, g_written, g_bad, g_nbad = _k.offset_choice_groups(
         order, bounds, int(options.min_component), rel, lines, np.ascontiguousarray(xy_cam, np.float64), model.xy_junction,
         int(model.index_min), int(model.index_max), float(model.fx_proj), int(options.candidate_refs),
         float(options.candidate_band_px), float(options.min_inside_fraction), float(options.residual_cap_px**2),
         model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm),
-        float(options.outlier_sigma), float(options.max_residual_px))
+        float(options.outlier_sigma), float(options.max_residual_px), float(options.noise_floor_px**2),
+        float(options.ambiguity_chi2), float(options.min_rms_ratio**2), labels, residual)
     # Work list: (members, split round, first-round group or −1). Pieces split off are relabelled on their own.
     work = [(order[bounds[g] : bounds[g + 1]], 0, g) for g in range(len(bounds) - 1)]
     while work:
@@ -289,7 +292,16 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             left["split_too_small"] += m
             continue
         limit = None
-        if g >= 0:
+        if g >= 0 and g_written[g]:
+            # accepted and written in the compiled call (`_choice_of`'s path without the retry)
+            stats["out_of_depth_range"] += int(g_fail[g])
+            stats["components_labelled"] += 1
+            n_bad = int(g_nbad[g])
+            if n_bad == 0:
+                continue
+            b0, b1 = bounds[g], bounds[g + 1]
+            bad, inside_m = g_bad[b0:b1], g_in[b0:b1]
+        elif g >= 0:
             b0, b1 = bounds[g], bounds[g + 1]
             ok_g = bool(g_ok[g])
             ch = _choice_of(model, rel[members] if ok_g else None, lines[members] if ok_g else None, xy_cam[members] if ok_g else None,
@@ -298,24 +310,26 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             limit = float(g_limit[g])
         else:
             ch = _choose_offset(model, rel[members], lines[members], xy_cam[members], options, stats)
-        if ch.reason is not None:
-            left[ch.reason] += m
-            if ch.reason == "ambiguous":
-                stats["ambiguous"] += 1
-            continue
-        r = ch.residual
-        # the inliers (finite residual within the outlier limit, inside the depth range) take their labels:
-        # one compiled pass (decision 0087)
-        bad, n_bad = _k.write_component(members, ch.labels, r, ch.inside, float(_outlier_limit(r, options)) if limit is None else limit,
-                                        labels, residual)
-        stats["components_labelled"] += 1
-        if n_bad == 0:
-            continue
+        if not (g >= 0 and g_written[g]):
+            if ch.reason is not None:
+                left[ch.reason] += m
+                if ch.reason == "ambiguous":
+                    stats["ambiguous"] += 1
+                continue
+            r = ch.residual
+            # the inliers (finite residual within the outlier limit, inside the depth range) take their labels:
+            # one compiled pass (decision 0087)
+            bad, n_bad = _k.write_component(members, ch.labels, r, ch.inside, float(_outlier_limit(r, options)) if limit is None else limit,
+                                            labels, residual)
+            inside_m = ch.inside
+            stats["components_labelled"] += 1
+            if n_bad == 0:
+                continue
         # Outliers: cut their edges to the inliers; what they hold together is labelled again on its own.
         outl = members[bad]
         if rounds >= options.max_split_rounds:
-            left["residual_too_large"] += int((bad & ch.inside).sum())
-            left["out_of_depth_range"] += int((bad & ~ch.inside).sum())
+            left["residual_too_large"] += int((bad & inside_m).sum())
+            left["out_of_depth_range"] += int((bad & ~inside_m).sum())
             continue
         stats["components_split"] += 1
         if edges is None:

@@ -257,9 +257,16 @@ def test_offset_choice_groups_equals_offset_choice_per_group(small_scene):
     args = (model.xy_junction, int(model.index_min), int(model.index_max), float(model.fx_proj), int(opts.candidate_refs),
             float(opts.candidate_band_px), float(opts.min_inside_fraction), float(opts.residual_cap_px**2),
             model.procam.R_proj_cam, model.procam.t_proj_cam, float(opts.depth_min_mm), float(opts.depth_max_mm))
-    st, nf, ok, s1, s2, ne, off, lim, r_all, in_all = K.offset_choice_groups(order, bounds, 2, rel, lines, xy, *args,
-                                                                              float(opts.outlier_sigma), float(opts.max_residual_px))
+    M = len(xy)
+    labels = np.full((M, 2), UNLABELLED, np.int64)
+    residual = np.full(M, np.nan)
+    st, nf, ok, s1, s2, ne, off, lim, r_all, in_all, written, bad, n_bad = K.offset_choice_groups(
+        order, bounds, 2, rel, lines, xy, *args, float(opts.outlier_sigma), float(opts.max_residual_px), float(opts.noise_floor_px**2),
+        float(opts.ambiguity_chi2), float(opts.min_rms_ratio**2), labels, residual)
+    labels_ref = np.full((M, 2), UNLABELLED, np.int64)
+    residual_ref = np.full(M, np.nan)
     n_ok = 0
+    n_written = 0
     for g in range(len(bounds) - 1):
         mem = order[bounds[g] : bounds[g + 1]]
         if len(mem) < 2:
@@ -273,9 +280,19 @@ def test_offset_choice_groups_equals_offset_choice_per_group(small_scene):
             assert np.array_equal(r_all[bounds[g] : bounds[g + 1]], ref[7], equal_nan=True)
             assert np.array_equal(in_all[bounds[g] : bounds[g + 1]], ref[8])
             assert lim[g] == _outlier_limit(ref[7], opts)
+            s1g, s2g = float(ref[3]), float(ref[4])
+            sigma2 = max(s1g, opts.noise_floor_px**2)
+            ambiguous = ref[5] * (s2g - s1g) / sigma2 < opts.ambiguity_chi2 or s2g < opts.min_rms_ratio**2 * sigma2
+            assert written[g] == (not ambiguous)
+            if written[g]:
+                n_written += 1
+                b_ref, nb_ref = K.write_component(mem, np.ascontiguousarray(rel[mem]) + ref[6], ref[7], ref[8], float(_outlier_limit(ref[7], opts)),
+                                                  labels_ref, residual_ref)
+                assert np.array_equal(bad[bounds[g] : bounds[g + 1]], b_ref) and n_bad[g] == nb_ref
         else:
-            assert np.isnan(lim[g])
-    assert n_ok >= 1
+            assert np.isnan(lim[g]) and not written[g]
+    assert n_ok >= 1 and n_written >= 1
+    assert np.array_equal(labels, labels_ref) and np.array_equal(residual, residual_ref, equal_nan=True)
 
 
 @pytest.mark.parametrize("scene_name", ["small_scene", "small_scene_pitch16"])
