@@ -64,6 +64,9 @@ from reconstruction._label_kernels import _union_find_root
 from reconstruction.piece_seeds import _SIN_MIN_CROSSING
 from reconstruction.rigmodel import UNLABELLED, RigModel
 
+# the sub-labeller's options without label_options, per depth range (built once: ~15 µs a call; never mutated)
+_DEFAULT_LO: dict = {}
+
 
 @njit
 def _k_number(parent):
@@ -725,7 +728,8 @@ def _k_nearest_hash(P, rows, xy, radius):
 @njit
 def _k_anchors(L, comp, node_end, nc, cand, labelled, val, first, fam, sid, qj, jl, xy, merge_px):
     """Step 6: a node whose label disagrees with a labelled piece ending at it (its family's index) or with a
-    labelled found junction within merge_px (qj, jl: the labelled found junctions) is a conflict; every node of
+    labelled found junction within merge_px (qj (M, 2), jl (M, 2): the found junctions and their labels; the
+    unlabelled ones, jl UNLABELLED, are skipped) is a conflict; every node of
     a conflicting node's component is dropped. Returns ok_node (labelled and kept) and the number of components
     dropped."""
     K = L.shape[0]
@@ -742,7 +746,14 @@ def _k_anchors(L, comp, node_end, nc, cand, labelled, val, first, fam, sid, qj, 
             f = fam[sid[first[p]]] - 1
             if L[nd, f] != val[p]:
                 conflict[nd] = True
-    M = qj.shape[0]
+    M = 0
+    x0 = np.inf
+    y0 = np.inf
+    for a in range(qj.shape[0]):
+        if jl[a, 0] != UNLABELLED:
+            M += 1
+            x0 = min(x0, qj[a, 0])
+            y0 = min(y0, qj[a, 1])
     if M > 0:
         # only a found junction within merge_px of a labelled node can be in conflict (with its nearest node, when
         # that is labelled): those junctions from a hashed grid of the junctions around the labelled nodes, then
@@ -751,20 +762,21 @@ def _k_anchors(L, comp, node_end, nc, cand, labelled, val, first, fam, sid, qj, 
         while size < 2 * M:
             size *= 2
         mask = size - 1
-        x0 = qj[:, 0].min()
-        y0 = qj[:, 1].min()
+        MA = qj.shape[0]
         head = np.full(size, -1, np.int64)
-        nxt = np.empty(M, np.int64)
-        jcx = np.empty(M, np.int64)
-        jcy = np.empty(M, np.int64)
-        for a in range(M):
+        nxt = np.empty(MA, np.int64)
+        jcx = np.empty(MA, np.int64)
+        jcy = np.empty(MA, np.int64)
+        for a in range(MA):
+            if jl[a, 0] == UNLABELLED:
+                continue
             jcx[a] = int(math.floor((qj[a, 0] - x0) / merge_px))
             jcy[a] = int(math.floor((qj[a, 1] - y0) / merge_px))
             hsh = (jcx[a] * 73856093 + jcy[a] * 19349663) & mask
             nxt[a] = head[hsh]
             head[hsh] = a
         r2 = merge_px * merge_px
-        near = np.zeros(M, np.bool_)
+        near = np.zeros(MA, np.bool_)
         n_near = 0
         for k in range(K):
             if not ok[k]:
@@ -785,7 +797,7 @@ def _k_anchors(L, comp, node_end, nc, cand, labelled, val, first, fam, sid, qj, 
         if n_near > 0:
             rows = np.empty(n_near, np.int64)
             m = 0
-            for a in range(M):
+            for a in range(MA):
                 if near[a]:
                     rows[m] = a
                     m += 1
@@ -1030,8 +1042,13 @@ def label_piece_junctions(
     if len(edges) == 0:
         return stats
     # 5. the default labeller on the components that hold an unlabelled piece between two of their nodes
-    lo = label_options if label_options is not None else LabelOptions(min_component=3)
-    lo = LabelOptions(**{**lo.__dict__, "depth_min_mm": float(depth_range_mm[0]), "depth_max_mm": float(depth_range_mm[1])})
+    d_rng = (float(depth_range_mm[0]), float(depth_range_mm[1]))
+    lo = _DEFAULT_LO.get(d_rng) if label_options is None else None
+    if lo is None:
+        lo = label_options if label_options is not None else LabelOptions(min_component=3)
+        lo = LabelOptions(**{**lo.__dict__, "depth_min_mm": d_rng[0], "depth_max_mm": d_rng[1]})
+        if label_options is None and len(_DEFAULT_LO) < 64:
+            _DEFAULT_LO[d_rng] = lo
     edges = np.ascontiguousarray(edges, np.int64)
     sub, renum, ek = _k_use(n_nodes, edges, np.ascontiguousarray(eseg, np.int64), cand, labelled, int(lo.min_component))
     stats["nodes_used"] = int(len(sub))
@@ -1047,11 +1064,9 @@ def label_piece_junctions(
     if not (L[:, 0] != UNLABELLED).any():
         return stats
     # 6. anchors: labelled pieces ending at a node, labelled found junctions nearby
-    jl = np.asarray(junction_labels, np.int64).reshape(-1, 2)
-    lj = np.flatnonzero(jl[:, 0] != UNLABELLED)
-    qj = np.ascontiguousarray(np.asarray(q_junction, np.float64).reshape(-1, 2)[lj])
-    ok_node, n_bad = _k_anchors(L, comp, node_end, nc, cand, labelled, val, first, fam, sid, qj, np.ascontiguousarray(jl[lj]), xy,
-                                float(merge_px))
+    jl = np.ascontiguousarray(np.asarray(junction_labels, np.int64).reshape(-1, 2))
+    qj = np.ascontiguousarray(np.asarray(q_junction, np.float64).reshape(-1, 2))
+    ok_node, n_bad = _k_anchors(L, comp, node_end, nc, cand, labelled, val, first, fam, sid, qj, jl, xy, float(merge_px))
     if n_bad:
         stats["components_anchor_conflict"] = int(n_bad)
     stats["nodes_labelled"] = int(ok_node.sum())
@@ -1063,7 +1078,9 @@ def label_piece_junctions(
         return stats
     # the fit's direction with NumPy's arctan2 (its SIMD version differs from the C library's in the last bit)
     ang = 0.5 * np.arctan2(2 * mom[:, 4], mom[:, 2] - mom[:, 3])
-    tdir = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    tdir = np.empty((len(ang), 2))
+    np.cos(ang, out=tdir[:, 0])
+    np.sin(ang, out=tdir[:, 1])
     move = q_out is not None
     n_pc, n_s, n_mv = _k_write(sel, mom, tdir, L, ed, a_j, b_j, fam_s, cand, first, last, ts, q, sid, xy, float(trim_px),
                                float(lateral_px), move, q_out if move else np.empty((0, 2)), index, seed_jid)

@@ -203,6 +203,44 @@ def _k_support(cen, rad, slot, sums, dirty, x0, y0, cell, gw, gh):
 
 
 @njit
+def _k_supported(open_c, cen_all, rad_all, slot, sums, dirty, x0, y0, cell, gw, gh, min_neighbours, min_spread, max_offset2):
+    """One round's step 2 over the open candidates (open_c (m,) bool over cen_all (m, 2), rad_all (m,)):
+    `_k_support`, then the candidates with at least min_neighbours neighbours, a smaller principal spread of at
+    least min_spread·rad and offset2 ≤ max_offset2. Returns the number of open candidates and the supported
+    ones (indices into cen_all, ascending)."""
+    m = open_c.shape[0]
+    n_open = 0
+    for i in range(m):
+        if open_c[i]:
+            n_open += 1
+    oc = np.empty(n_open, np.int64)
+    cen = np.empty((n_open, 2))
+    rad = np.empty(n_open)
+    j = 0
+    for i in range(m):
+        if open_c[i]:
+            oc[j] = i
+            cen[j, 0] = cen_all[i, 0]
+            cen[j, 1] = cen_all[i, 1]
+            rad[j] = rad_all[i]
+            j += 1
+    if n_open == 0:
+        return 0, oc
+    cnt, spread, offset2 = _k_support(cen, rad, slot, sums, dirty, x0, y0, cell, gw, gh)
+    ns = 0
+    for j in range(n_open):
+        if cnt[j] >= min_neighbours and spread[j] >= min_spread * rad[j] and offset2[j] <= max_offset2:
+            ns += 1
+    sup = np.empty(ns, np.int64)
+    k = 0
+    for j in range(n_open):
+        if cnt[j] >= min_neighbours and spread[j] >= min_spread * rad[j] and offset2[j] <= max_offset2:
+            sup[k] = oc[j]
+            k += 1
+    return n_open, sup
+
+
+@njit
 def _k_needed(cen, rad, index, w, seen, x0, y0, cell, gw, gh, start, items):
     """The labelled samples (finite index[s]) in the neighbourhood of any centre cen[r] (the cells
     `_k_support` sums) whose depth is not known yet (w[s] NaN), each once: their ids, in the order found.
@@ -664,13 +702,12 @@ def label_from_surface(
     dirty = np.ones(gw * gh, np.bool_)  # the cells where labels changed: all at first
     slot, sums = _k_cell_sums(q, index, cen_all, rad_all, x0, y0, cell, gw, gh, start, items)  # per cell, its labelled samples
     for _ in range(rounds):
-        oc = np.flatnonzero(open_c)
-        if len(oc) == 0:
-            break
-        stats["tried"] += len(oc)
         # 2. support on both sides (camera px only, before any depth is computed)
-        cnt, spread, offset2 = _k_support(cen_all[oc], rad_all[oc], slot, sums, dirty, x0, y0, cell, gw, gh)
-        sup = oc[(cnt >= min_neighbours) & (spread >= min_spread * rad_all[oc]) & (offset2 <= max_offset * max_offset)]
+        n_open, sup = _k_supported(open_c, cen_all, rad_all, slot, sums, dirty, x0, y0, cell, gw, gh, int(min_neighbours),
+                                   float(min_spread), float(max_offset * max_offset))
+        if n_open == 0:
+            break
+        stats["tried"] += int(n_open)
         if len(sup) == 0:
             break
         cand, cen, rad = cand_all[sup], cen_all[sup], rad_all[sup]
