@@ -269,6 +269,17 @@ def coarse_pass(img, truth, s, frame, base, *, scale: float = 2.0) -> dict:
     return out
 
 
+def _without_relative_strength(img, truth, s, o, base) -> dict:
+    """The fine pass alone with `min_relative_strength` 0 (decision 0076's sweep, again on this tree)."""
+    o0 = dataclasses.replace(o, extract=dataclasses.replace(o.extract, min_relative_strength=0.0))
+    fr0 = extract_frame(img, s.procam, s.pattern, options=o0)
+    res = finish_frame(fr0)
+    new = cKDTree(base.q_cam).query(res.q_cam)[0] > 0.05 if len(base.q_cam) else np.ones(len(res.q_cam), bool)
+    return {"samples": len(fr0.obs.q), "cov": 100 * coverage_lines(truth, s.pattern, res.q_cam),
+            "new": int(new.sum()), "lost": int((cKDTree(res.q_cam).query(base.q_cam)[0] > 0.05).sum()),
+            "rel_new": _rel_err(res.points_proj[new], res.q_cam[new], truth), "rel_all": _rel_err(res.points_proj, res.q_cam, truth)}
+
+
 def _time_coarse(img, s, frame, repeat: int) -> tuple[float, float]:
     """Median ms of the fine extraction and of the coarse one (alternating runs, after one warm-up each)."""
     sigma = sigma_for(frame.model, frame.options.extract)
@@ -315,7 +326,7 @@ def analyse(s, img, truth, repeat: int) -> dict:
     cosp = np.abs((truth.normal_proj.astype(np.float64)[vv, uu] * -P).sum(1) / np.linalg.norm(P, axis=1))
     r = {"name": s.name, "target": len(pix), "cov": 100 * coverage_lines(truth, p, base.q_cam), "n": int(sel.sum()),
          "g01": int((sel & (cosp < 0.1)).sum()), "g03": int((sel & (cosp < 0.3)).sum()), "t01": int((cosp < 0.1).sum()),
-         "pred_width": model.line_width_cam_px, "sigma": sigma, "scale": int(obs.stats["scale"])}  # fmt: skip
+         "samples": len(obs.q), "pred_width": model.line_width_cam_px, "sigma": sigma, "scale": int(obs.stats["scale"])}  # fmt: skip
     u, v, f = uu[sel], vv[sel], fam[sel]
     width = np.where(f == 1, camera_line_width(truth.q_proj, p, 1)[v, u], camera_line_width(truth.q_proj, p, 2)[v, u])
     ang = np.degrees(np.abs((line_angle(truth.q_proj, p, 1) - line_angle(truth.q_proj, p, 2))[v, u] + np.pi / 2) % np.pi - np.pi / 2)
@@ -331,6 +342,7 @@ def analyse(s, img, truth, repeat: int) -> dict:
                             family_margin=eo.family_margin)  # fmt: skip
         r["first"] = np.bincount(first_failing_test(tests, u, v, f), minlength=len(TESTS) + 1)
         r["coarse"] = coarse_pass(img, truth, s, frame, base)
+        r["norel"] = _without_relative_strength(img, truth, s, o, base)
         r["ms"] = _time_coarse(img, s, frame, repeat)
     return r
 
@@ -409,6 +421,12 @@ def main() -> None:
     L += markdown_table(["scene", "family", "added samples", "of true family", "labelled (right index)", "coverage %", "new / lost points",
                          "new points: med / p99 / max / >1 %", "all points: med / p99 / max / >1 %", "pieces: near own line (other nearer)",
                          "distance own / other (px)"], cr, align="llrrrrrrrrr")  # fmt: skip
+    L += ["", "## The fine pass alone without the relative-strength test (`min_relative_strength` 0)", ""]
+    L += markdown_table(["scene", "samples", "coverage %", "new / lost points", "new points: med / p99 / max / >1 %",
+                         "all points: med / p99 / max / >1 %"],
+                        [[r["name"], f"{r['samples']} → {r['norel']['samples']}", f"{r['cov']:.2f} → {r['norel']['cov']:.2f}",
+                          f"{r['norel']['new']} / {r['norel']['lost']}", _err(r["norel"]["rel_new"]), _err(r["norel"]["rel_all"])]
+                         for r in full], align="lrrrrr")  # fmt: skip
     L += ["", f"## Time (ms per frame, median of {a.repeat} alternating runs; shared 2-core machine)", ""]
     L += markdown_table(["scene", "fine extraction", "coarse extraction (σ × 2)", "ratio"],
                         [[r["name"], f"{r['ms'][0]:.1f}", f"{r['ms'][1]:.1f}", f"{r['ms'][1] / r['ms'][0]:.2f}"] for r in full], align="lrrr")
