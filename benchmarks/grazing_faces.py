@@ -21,7 +21,8 @@ extraction sample *of the pixel's true family* within 1.5 px, and the other fami
    `reconstruct`: added samples, how many have their true family, how many the label stage labels (with the
    predicted family, and with the truth's family: an upper bound for any better family test), points,
    coverage, and the new points alone against the truth; per added piece, the distance to the nearest
-   labelled point of its own true line;
+   labelled point of its own true line, and the visible true crossings on it (seeds a detector of acute
+   crossings could give);
 4. the coarse pass's time next to the fine extraction's (alternating runs, medians).
 
 Writes benchmarks/results/grazing_faces.md.
@@ -38,6 +39,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from benchmarks.bench_extraction import truth_grid
 from benchmarks._common import (RESULTS, bench_scenes, coverage_lines, line_centre_pixels, markdown_table, render_scene,
                                 sample_bilinear, tree_state, write_markdown)
 from reconstruction.extraction import (ExtractOptions, GridObservation, _laplacian_noise_gain, _smooth, extract_grid,
@@ -231,6 +233,8 @@ def coarse_pass(img, truth, s, frame, base, *, scale: float = 2.0) -> dict:
                                                                          min_relative_strength=0.0))
     coarse = extract_frame(img, s.procam, s.pattern, options=o2).obs
     out = {"coarse_samples": len(coarse.q)}
+    tg = truth_grid(truth, s.pattern, r_vis=3.0)
+    q_vis = tg["q"][tg["visible"]]
     for tag, cobs in (("predicted", coarse), ("true", with_true_families(coarse, truth, s.pattern))):
         merged, add = merge_coarse(frame.obs, cobs, min_gap_px=1.5 * sigma)
         q_add = cobs.q[add]
@@ -244,8 +248,9 @@ def coarse_pass(img, truth, s, frame, base, *, scale: float = 2.0) -> dict:
         rel_new = _rel_err(res.points_proj[new], res.q_cam[new], truth)
         rel_all = _rel_err(res.points_proj, res.q_cam, truth)
         # per added piece: distance to the nearest labelled point (baseline) of its own true line, and of another
-        d_same, d_other = [], []
+        d_same, d_other, n_junc, n_len = [], [], [], []
         segs = merged.segment_linked[len(frame.obs.q):]
+        tj = cKDTree(q_vis) if len(q_vis) else None
         for sg in np.unique(segs):
             m = segs == sg
             f0 = int(np.bincount(tf[m]).argmax())
@@ -255,14 +260,19 @@ def coarse_pass(img, truth, s, frame, base, *, scale: float = 2.0) -> dict:
                 continue
             dd = np.linalg.norm(pts[:, None, :] - q_add[m][None], axis=2).min(1)
             d_same.append(dd[labs == k0].min() if (labs == k0).any() else np.inf)
+            n_len.append(int(m.sum()))
+            # visible true junctions (crossings) on or at the ends of the piece: within half a predicted junction
+            # step of one of its samples (the pieces stop short of a crossing's core)
+            r_j = 0.5 * frame.model.junction_step_cam_px
+            n_junc.append(len(set(j for js in tj.query_ball_point(q_add[m], r_j) for j in js)) if tj is not None else 0)
             d_other.append(dd[labs != k0].min() if (labs != k0).any() else np.inf)
-        d_same, d_other = np.array(d_same), np.array(d_other)
+        d_same, d_other, n_junc = np.array(d_same), np.array(d_other), np.array(n_junc, int)
         out[tag] = {
             "added": len(add), "true_family": int((tf == fam_add).sum()), "labelled": int(np.isfinite(idx).sum()),
             "labelled_right": int((idx == k_true).sum()), "points": int(res.n_points), "new": int(new.sum()),
             "lost": int((cKDTree(res.q_cam).query(base.q_cam)[0] > 0.05).sum()) if len(res.q_cam) else len(base.q_cam),
             "cov": 100 * coverage_lines(truth, s.pattern, res.q_cam), "rel_new": rel_new, "rel_all": rel_all,
-            "pieces": len(d_same), "near8": int((d_same <= 8).sum()), "near8_other_nearer": int(((d_same <= 8) & (d_other < d_same)).sum()),
+            "pieces": len(d_same), "piece_len": float(np.median(n_len)) if n_len else float("nan"), "junc1": int((n_junc >= 1).sum()), "junc2": int((n_junc >= 2).sum()), "near8": int((d_same <= 8).sum()), "near8_other_nearer": int(((d_same <= 8) & (d_other < d_same)).sum()),
             "d_same_med": float(np.median(d_same)) if len(d_same) else float("nan"),
             "d_other_med": float(np.median(d_other)) if len(d_other) else float("nan"),
         }  # fmt: skip
@@ -410,17 +420,17 @@ def main() -> None:
           "Added: coarse samples merged (`merge_coarse`); family: with the predicted family / with the truth's family. "
           "New points: their median / p99 / max relative error (%) / count > 1 %. Pieces: added pieces; within 8 px of a "
           "labelled point of their own true line (of those, another line's labelled point nearer); median distance to "
-          "their own line's / another line's labelled points (px).", ""]  # fmt: skip
+          "their own line's / another line's labelled points (px); pieces with visible true junctions (crossings, `truth_grid`) within half a predicted junction step of their samples.", ""]  # fmt: skip
     cr = []
     for r in full:
         for tag in ("predicted", "true"):
             c = r["coarse"][tag]
             cr.append([r["name"], tag, str(c["added"]), str(c["true_family"]), f"{c['labelled']} ({c['labelled_right']})",
                        f"{r['cov']:.2f} → {c['cov']:.2f}", f"{c['new']} / {c['lost']}", _err(c["rel_new"]), _err(c["rel_all"]),
-                       f"{c['pieces']}: {c['near8']} ({c['near8_other_nearer']})", f"{c['d_same_med']:.1f} / {c['d_other_med']:.1f}"])  # fmt: skip
+                       f"{c['pieces']} ({c['piece_len']:.0f}): {c['near8']} ({c['near8_other_nearer']})", f"{c['junc1']} / {c['junc2']}", f"{c['d_same_med']:.1f} / {c['d_other_med']:.1f}"])  # fmt: skip
     L += markdown_table(["scene", "family", "added samples", "of true family", "labelled (right index)", "coverage %", "new / lost points",
-                         "new points: med / p99 / max / >1 %", "all points: med / p99 / max / >1 %", "pieces: near own line (other nearer)",
-                         "distance own / other (px)"], cr, align="llrrrrrrrrr")  # fmt: skip
+                         "new points: med / p99 / max / >1 %", "all points: med / p99 / max / >1 %", "pieces (median samples): near own line (other nearer)", "pieces with ≥ 1 / ≥ 2 true crossings",
+                         "distance own / other (px)"], cr, align="llrrrrrrrrrr")  # fmt: skip
     L += ["", "## The fine pass alone without the relative-strength test (`min_relative_strength` 0)", ""]
     L += markdown_table(["scene", "samples", "coverage %", "new / lost points", "new points: med / p99 / max / >1 %",
                          "all points: med / p99 / max / >1 %"],
