@@ -42,7 +42,7 @@ from scipy.spatial import cKDTree
 from benchmarks.bench_extraction import truth_grid
 from benchmarks._common import (RESULTS, bench_scenes, coverage_lines, line_centre_pixels, markdown_table, render_scene,
                                 sample_bilinear, tree_state, write_markdown)
-from reconstruction.extraction import (ExtractOptions, GridObservation, _laplacian_noise_gain, _smooth, extract_grid,
+from reconstruction.extraction import (GridObservation, _laplacian_noise_gain, _smooth, extract_grid,
                                        image_noise_grey, sigma_for)
 from reconstruction.labelling import LabelOptions, label_epipolar, label_samples
 from reconstruction.pipeline import ExtractedFrame, ReconstructOptions, extract_frame, finish_frame
