@@ -201,7 +201,8 @@ def _k_end_pairs_f(E, U, pos, first, last, piece, ts, q, sid, trim_px, anchor, f
     skipped. An end's line lies beyond the crossing's pull (`piece_seeds._k_end_line` of trace position
     pos[r]: from the first sample trim_px inside the end, along the chord `anchor` samples further in), or is
     the end sample and its outward direction U where the piece is too short; computed when first needed.
-    The ends are bucketed in one grid per family (cells radius wide); the end lines read q (P, 2) through sid. Returns the partner end (−1: none) and the crossing c (n, 2).
+    The ends are bucketed in one grid per family (cells radius wide); the end lines read q (P, 2) through
+    sid. Returns the partner end (−1: none) and the crossing c (n, 2).
     (The reference's `_k_end_pairs`, one grid for both families, gives the same results: decision 0097.)"""
     R = E.shape[0]
     n = rows.shape[0]

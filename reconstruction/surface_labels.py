@@ -155,8 +155,9 @@ def _k_cell_sums(q, index, cen, rad, x0, y0, cell, gw, gh, start, items):
 @njit
 def _k_support(cen, rad, slot, sums, dirty, x0, y0, cell, gw, gh):
     """Per piece centre cen[r]: its neighbourhood's labelled samples (the grid cells the square of half side
-    rad[r] touches, from the per-cell sums of `_k_cell_sums`, slot and sums; every such cell has a slot): their count, the smaller principal spread
-    (camera px, square root of the smaller eigenvalue of their covariance) and offset2, the Mahalanobis form
+    rad[r] touches, from the per-cell sums of `_k_cell_sums`, slot and sums; every such cell has a slot):
+    their count, the smaller principal spread (camera px, square root of the smaller eigenvalue of their
+    covariance) and offset2, the Mahalanobis form
     of the centre against their centroid in that covariance (inf when singular or fewer than 3). Centres
     whose cells include none marked in dirty (gw·gh, bool: where labels changed since the last call) are
     skipped (count 0)."""
@@ -597,8 +598,8 @@ def _k_predict_accept(fr, cand, count, first, last, sid, q, fam, ts, coef, rms, 
 def _k_write(lens, write, k, near, s_all, q, index, seed_jid, slot, sums, dirty, x0, y0, cell, gw, gh):
     """Writes the accepted samples (write (N,), in the order of s_all, lens (m,) per piece): index k of their
     piece, seed_jid of its nearest labelled neighbour near[i]; marks their grid cells in dirty (cleared first)
-    and adds them to the per-cell sums (`_k_cell_sums`: slot, sums; a cell without a slot is never read). Returns the pieces written (bool (m,)) and the number
-    of samples."""
+    and adds them to the per-cell sums (`_k_cell_sums`: slot, sums; a cell without a slot is never read).
+    Returns the pieces written (bool (m,)) and the number of samples."""
     dirty[:] = False
     m = lens.shape[0]
     done = np.zeros(m, np.bool_)
