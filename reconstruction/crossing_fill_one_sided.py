@@ -57,7 +57,13 @@ class OneSidedFillOptions:
     residual_px: the crossing, triangulated on the line's light sheet, lies this close to a line of the other
     family (projector px). mix_sigma, trim_sigma, min_angle_deg: the crossing's reach, as the label stage's
     TraceOptions and decision 0086. other_label: when the other run's samples are labelled m, the sheet
-    check must name m."""
+    check must name m.
+    unlabelled_run: accept the other family's run when none of its samples is labelled (its crossing then
+    checked on sheet k only). through: the other family's run must have samples on both sides of the line
+    (it runs through the crossing: not the corner where two lines end). beyond: no end whose image line
+    continues beyond the crossing (labelled samples of its family within beyond_sigma·σ of the extrapolation,
+    up to one reach past the crossing) with another index (a depth edge at the crossing) or with its own
+    (a gap decision 0086 looked at and did not fill)."""
 
     enabled: bool = True
     min_gap_cells: float = 1.6
@@ -68,6 +74,11 @@ class OneSidedFillOptions:
     trim_sigma: float = 1.0
     min_angle_deg: float = 45.0
     other_label: bool = True
+    unlabelled_run: bool = True
+    through: bool = True
+    beyond: bool = True
+    beyond_sigma: float = 2.0
+    beyond_spacing: float = 0.5
 
 
 _EMPTY_STATS = ("ends", "ends_filled", "samples_one_sided_filled")
@@ -124,10 +135,13 @@ def fill_one_sided(
     n_ends, ends, acc, c_q, m_other, why = _k_ends(
         q, fam, idx, order, qj, lab, jsel, qs, fs, ks, float(cell_px), float(sigma_px),
         float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),
-        int(options.anchor), float(math.sin(math.radians(options.min_angle_deg))), float(options.lateral_px * cell_px))
+        int(options.anchor), float(math.sin(math.radians(options.min_angle_deg))), float(options.lateral_px * cell_px),
+        bool(options.through), bool(options.beyond),
+        float(max(options.beyond_sigma * sigma_px, options.beyond_spacing * model.junction_step_cam_px * math.sin(math.radians(options.min_angle_deg)))))
     stats["ends"] = int(n_ends)
     stats["ends_rejected"] = {"anchors": int(why[0]), "anchors_crooked": int(why[1]), "no_run": int(why[2]),
-                              "beyond_reach": int(why[3]), "other_labels_disagree": int(why[4]), "sheet_check": 0}
+                              "beyond_reach": int(why[3]), "other_labels_disagree": int(why[4]),
+                              "line_continues": int(why[5]), "sheet_check": 0}
     E = len(acc)
     if E == 0:
         return _empty(stats)
@@ -136,8 +150,12 @@ def fill_one_sided(
         a_chk = ends[chk, 0].astype(np.intp)
         _p, z, k_other, dist = model.sheet_check(c_q[chk], fam[a_chk], idx[a_chk].astype(np.intp))
         ok = (dist <= options.residual_px) & (z >= depth_range_mm[0]) & (z <= depth_range_mm[1])
+        m = m_other[chk]
+        if not options.unlabelled_run:
+            ok &= m != UNLABELLED
         if options.other_label:
-            m = m_other[chk]
+            # the junction (k, m): the camera ray meets sheet k within residual_px of line m (the labelled
+            # junctions' epipolar test, along line k)
             ok &= (m == UNLABELLED) | (k_other == m)
         acc[chk] = ok
         stats["ends_rejected"]["sheet_check"] = int(len(chk) - ok.sum())
@@ -182,7 +200,7 @@ def _k_points(fam, idx, junction, ends, acc, cell):
 
 
 @njit
-def _run_crossing(ox, oy, ux, uy, mx, my, rad, f, qs, ks, x0, y0, gcell, gw, gh, start, mid, items, hits, lateral):
+def _run_crossing(ox, oy, ux, uy, mx, my, rad, f, qs, ks, x0, y0, gcell, gw, gh, start, mid, items, hits, lateral, through):
     """The other family's samples within rad of (mx, my): when at least 4 and one straight run (minor spread
     ≤ lateral), where its major axis crosses the line o + s·u: (s, sin θ, m) with m the run's label (the one
     index its labelled samples carry; UNLABELLED when none is labelled, −2**62 when they disagree); s NaN
@@ -212,6 +230,18 @@ def _run_crossing(ox, oy, ux, uy, mx, my, rad, f, qs, ks, x0, y0, gcell, gw, gh,
     if abs(den) < 1e-6:
         return np.nan, 0.0, UNLABELLED_K
     s = ((cxm - ox) * nx + (cym - oy) * ny) / den
+    # the other line runs through the crossing: samples on both sides of the line o + s·u
+    neg = 0
+    pos = 0
+    for h in range(cnt):
+        i = hits[h]
+        side = -(qs[i, 0] - ox) * uy + (qs[i, 1] - oy) * ux
+        if side < 0.0:
+            neg += 1
+        else:
+            pos += 1
+    if through and (neg < 2 or pos < 2):
+        return np.nan, 0.0, UNLABELLED_K
     m = UNLABELLED_K
     for h in range(cnt):
         k = ks[hits[h]]
@@ -228,7 +258,37 @@ CONFLICT_K = -(2 ** 62)
 
 
 @njit
-def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap, gap_max, half_gap, anchor, sin_min, lateral):
+def _beyond(ox, oy, ux, uy, s_c, reach, width, f, k, q, fam, idx, x0, y0, gcell, gw, gh, start, items):
+    """The labelled samples of family f ahead of the crossing (s_c < s ≤ s_c + reach along o + s·u, within
+    `width` of the line across it): 0 none, 1 some of another index than k (the image's line continues
+    beyond the crossing with another index: a depth edge there), 2 only of index k (a gap decision 0086
+    did not fill)."""
+    mx = ox + (s_c + 0.5 * reach) * ux
+    my = oy + (s_c + 0.5 * reach) * uy
+    gx = int((mx - x0) / gcell)
+    gy = int((my - y0) / gcell)
+    out = 0
+    for cy in range(max(gy - 1, 0), min(gy + 2, gh)):
+        for cx in range(max(gx - 1, 0), min(gx + 2, gw)):
+            c = cy * gw + cx
+            for t in range(start[c], start[c + 1]):
+                i = items[t]
+                if fam[i] != f:
+                    continue
+                ex = q[i, 0] - ox
+                ey = q[i, 1] - oy
+                s = ex * ux + ey * uy
+                if s <= s_c or s > s_c + reach or abs(-ex * uy + ey * ux) > width:
+                    continue
+                if idx[i] != k:
+                    return 1
+                out = 2
+    return out
+
+
+@njit
+def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap, gap_max, half_gap, anchor, sin_min, lateral, through,
+            check_beyond, width):
     """Steps 1–3 of the module doc. Returns the number of ends looked at, per end that passed the fit (E, 6)
     [end sample, ox, oy, ux, uy, s_c] (o the fit's point at the end sample, u the outward unit direction,
     s_c the crossing's centre along it), accepted (E,) (a labelled junction of this line ends it), c_q (E,
@@ -241,7 +301,7 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
     acc = np.zeros(cap, np.bool_)
     c_q = np.full((cap, 2), np.nan)
     m_out = np.full(cap, UNLABELLED_K, np.int64)
-    why = np.zeros(5, np.int64)
+    why = np.zeros(6, np.int64)
     E = 0
     n_ends = 0
     gcell = max(gap_max, 4.0 * sigma, 2.0 * cell)
@@ -251,6 +311,10 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
     jx0, jy0, jgw, jgh, jstart, jitems, _ = sample_grid(qj, jkeep, _NO_TRACE, gcell)
     sx0, sy0, sgw, sgh, sstart, smid, sitems = _family_grid(qs, fs, gcell)
     hits = np.empty(sitems.shape[0], np.intp)
+    lkeep = np.zeros(q.shape[0], np.bool_)
+    for i in order:
+        lkeep[i] = True
+    lx0, ly0, lgw, lgh, lstart, litems, _ = sample_grid(q, lkeep, _NO_TRACE, gcell)
     for p in range(n):
         a = order[p]
         for side in range(2):
@@ -362,7 +426,10 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
                         if s > 0.0 and s <= half_max and s < best:
                             best = s
             if best < np.inf:
-                if best < s_next:
+                bz = _beyond(ox, oy, ux, uy, best, half_max, width, f, kidx, q, fam, idx, lx0, ly0, gcell, lgw, lgh, lstart, litems) if check_beyond else 0
+                if bz != 0:
+                    why[5] += 1
+                elif best < s_next:
                     ends[E, 0] = a
                     ends[E, 1] = ox
                     ends[E, 2] = oy
@@ -377,14 +444,14 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
             # 3b. the other family's straight run ahead: a disc over the reach, then re-centred on the crossing
             r1 = 0.5 * half_max + sigma
             s, sin_t, m = _run_crossing(ox, oy, ux, uy, ox + 0.5 * half_max * ux, oy + 0.5 * half_max * uy, r1, f, qs, ks,
-                                        sx0, sy0, gcell, sgw, sgh, sstart, smid, sitems, hits, lateral)
+                                        sx0, sy0, gcell, sgw, sgh, sstart, smid, sitems, hits, lateral, through)
             if not np.isfinite(s):
                 why[2] += 1
                 continue
             r2 = half_gap + sigma
             if s > 0.0 and s <= half_max:
                 s, sin_t, m = _run_crossing(ox, oy, ux, uy, ox + s * ux, oy + s * uy, r2, f, qs, ks,
-                                            sx0, sy0, gcell, sgw, sgh, sstart, smid, sitems, hits, lateral)
+                                            sx0, sy0, gcell, sgw, sgh, sstart, smid, sitems, hits, lateral, through)
                 if not np.isfinite(s):
                     why[2] += 1
                     continue
@@ -393,6 +460,9 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
                 continue
             if m == CONFLICT_K:
                 why[4] += 1
+                continue
+            if check_beyond and _beyond(ox, oy, ux, uy, s, half_max, width, f, kidx, q, fam, idx, lx0, ly0, gcell, lgw, lgh, lstart, litems) != 0:
+                why[5] += 1
                 continue
             ends[E, 0] = a
             ends[E, 1] = ox
