@@ -79,6 +79,7 @@ class OneSidedFillOptions:
     beyond: bool = True
     beyond_sigma: float = 2.0
     beyond_spacing: float = 0.5
+    beyond_same: bool = False
 
 
 _EMPTY_STATS = ("ends", "ends_filled", "samples_one_sided_filled")
@@ -137,7 +138,8 @@ def fill_one_sided(
         float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),
         int(options.anchor), float(math.sin(math.radians(options.min_angle_deg))), float(options.lateral_px * cell_px),
         bool(options.through), bool(options.beyond),
-        float(max(options.beyond_sigma * sigma_px, options.beyond_spacing * model.junction_step_cam_px * math.sin(math.radians(options.min_angle_deg)))))
+        float(max(options.beyond_sigma * sigma_px, options.beyond_spacing * model.junction_step_cam_px * math.sin(math.radians(options.min_angle_deg)))),
+        bool(options.beyond_same))
     stats["ends"] = int(n_ends)
     stats["ends_rejected"] = {"anchors": int(why[0]), "anchors_crooked": int(why[1]), "no_run": int(why[2]),
                               "beyond_reach": int(why[3]), "other_labels_disagree": int(why[4]),
@@ -258,8 +260,8 @@ CONFLICT_K = -(2 ** 62)
 
 
 @njit
-def _beyond(ox, oy, ux, uy, s_c, reach, width, f, k, q, fam, idx, x0, y0, gcell, gw, gh, start, items):
-    """The labelled samples of family f ahead of the crossing (s_c < s ≤ s_c + reach along o + s·u, within
+def _beyond(ox, oy, ux, uy, s_c, reach, width, f, k, qs, ks, x0, y0, gcell, gw, gh, start, mid, items, same):
+    """The labelled samples (qs, labels ks, NaN: none; on `_family_grid`'s grid) of family f ahead of the crossing (s_c < s ≤ s_c + reach along o + s·u, within
     `width` of the line across it): 0 none, 1 some of another index than k (the image's line continues
     beyond the crossing with another index: a depth edge there), 2 only of index k (a gap decision 0086
     did not fill)."""
@@ -271,24 +273,26 @@ def _beyond(ox, oy, ux, uy, s_c, reach, width, f, k, q, fam, idx, x0, y0, gcell,
     for cy in range(max(gy - 1, 0), min(gy + 2, gh)):
         for cx in range(max(gx - 1, 0), min(gx + 2, gw)):
             c = cy * gw + cx
-            for t in range(start[c], start[c + 1]):
+            t0 = start[c] if f == 1 else mid[c]
+            t1 = mid[c] if f == 1 else start[c + 1]
+            for t in range(t0, t1):
                 i = items[t]
-                if fam[i] != f:
+                if not np.isfinite(ks[i]):
                     continue
-                ex = q[i, 0] - ox
-                ey = q[i, 1] - oy
+                ex = qs[i, 0] - ox
+                ey = qs[i, 1] - oy
                 s = ex * ux + ey * uy
                 if s <= s_c or s > s_c + reach or abs(-ex * uy + ey * ux) > width:
                     continue
-                if idx[i] != k:
+                if ks[i] != k:
                     return 1
                 out = 2
-    return out
+    return out if same else 0
 
 
 @njit
 def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap, gap_max, half_gap, anchor, sin_min, lateral, through,
-            check_beyond, width):
+            check_beyond, width, beyond_same):
     """Steps 1–3 of the module doc. Returns the number of ends looked at, per end that passed the fit (E, 6)
     [end sample, ox, oy, ux, uy, s_c] (o the fit's point at the end sample, u the outward unit direction,
     s_c the crossing's centre along it), accepted (E,) (a labelled junction of this line ends it), c_q (E,
@@ -311,10 +315,6 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
     jx0, jy0, jgw, jgh, jstart, jitems, _ = sample_grid(qj, jkeep, _NO_TRACE, gcell)
     sx0, sy0, sgw, sgh, sstart, smid, sitems = _family_grid(qs, fs, gcell)
     hits = np.empty(sitems.shape[0], np.intp)
-    lkeep = np.zeros(q.shape[0], np.bool_)
-    for i in order:
-        lkeep[i] = True
-    lx0, ly0, lgw, lgh, lstart, litems, _ = sample_grid(q, lkeep, _NO_TRACE, gcell)
     for p in range(n):
         a = order[p]
         for side in range(2):
@@ -426,7 +426,7 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
                         if s > 0.0 and s <= half_max and s < best:
                             best = s
             if best < np.inf:
-                bz = _beyond(ox, oy, ux, uy, best, half_max, width, f, kidx, q, fam, idx, lx0, ly0, gcell, lgw, lgh, lstart, litems) if check_beyond else 0
+                bz = _beyond(ox, oy, ux, uy, best, half_max, width, f, kidx, qs, ks, sx0, sy0, gcell, sgw, sgh, sstart, smid, sitems, beyond_same) if check_beyond else 0
                 if bz != 0:
                     why[5] += 1
                 elif best < s_next:
@@ -461,7 +461,7 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
             if m == CONFLICT_K:
                 why[4] += 1
                 continue
-            if check_beyond and _beyond(ox, oy, ux, uy, s, half_max, width, f, kidx, q, fam, idx, lx0, ly0, gcell, lgw, lgh, lstart, litems) != 0:
+            if check_beyond and _beyond(ox, oy, ux, uy, s, half_max, width, f, kidx, qs, ks, sx0, sy0, gcell, sgw, sgh, sstart, smid, sitems, beyond_same) != 0:
                 why[5] += 1
                 continue
             ends[E, 0] = a
