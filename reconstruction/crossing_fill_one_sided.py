@@ -63,7 +63,9 @@ class OneSidedFillOptions:
     (it runs through the crossing: not the corner where two lines end). beyond: no end whose image line
     continues beyond the crossing (labelled samples of its family within beyond_sigma·σ of the extrapolation,
     up to one reach past the crossing) with another index (a depth edge at the crossing) or with its own
-    (a gap decision 0086 looked at and did not fill)."""
+    (a gap decision 0086 looked at and did not fill; off: measured, such gaps' sides are filled).
+    pull_sigma: the fit's anchors start this many σ inside the end (the crossing pulls the last samples
+    towards the other line; decision 0089's trim)."""
 
     enabled: bool = True
     min_gap_cells: float = 1.6
@@ -80,6 +82,7 @@ class OneSidedFillOptions:
     beyond_sigma: float = 2.0
     beyond_spacing: float = 0.5
     beyond_same: bool = False
+    pull_sigma: float = 1.0
 
 
 _EMPTY_STATS = ("ends", "ends_filled", "samples_one_sided_filled")
@@ -139,7 +142,7 @@ def fill_one_sided(
         int(options.anchor), float(math.sin(math.radians(options.min_angle_deg))), float(options.lateral_px * cell_px),
         bool(options.through), bool(options.beyond),
         float(max(options.beyond_sigma * sigma_px, options.beyond_spacing * model.junction_step_cam_px * math.sin(math.radians(options.min_angle_deg)))),
-        bool(options.beyond_same))
+        bool(options.beyond_same), float(options.pull_sigma * sigma_px))
     stats["ends"] = int(n_ends)
     stats["ends_rejected"] = {"anchors": int(why[0]), "anchors_crooked": int(why[1]), "no_run": int(why[2]),
                               "beyond_reach": int(why[3]), "other_labels_disagree": int(why[4]),
@@ -292,7 +295,7 @@ def _beyond(ox, oy, ux, uy, s_c, reach, width, f, k, qs, ks, x0, y0, gcell, gw, 
 
 @njit
 def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap, gap_max, half_gap, anchor, sin_min, lateral, through,
-            check_beyond, width, beyond_same):
+            check_beyond, width, beyond_same, pull):
     """Steps 1–3 of the module doc. Returns the number of ends looked at, per end that passed the fit (E, 6)
     [end sample, ox, oy, ux, uy, s_c] (o the fit's point at the end sample, u the outward unit direction,
     s_c the crossing's centre along it), accepted (E,) (a labelled junction of this line ends it), c_q (E,
@@ -328,15 +331,37 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
                     if dx * dx + dy * dy <= min_gap * min_gap:
                         continue  # not an end
             n_ends += 1
-            # 2. the anchors: `anchor` samples inward from the end, one run of this line
+            # 2. the anchors: `anchor` samples inward from the end, one run of this line, from the first one at
+            # least `pull` from the end sample on (beyond the crossing's pull on the last samples)
             ok = True
-            last = p - step * (anchor - 1)
-            if last < 0 or last >= n:
+            p1 = p
+            while True:
+                s0 = order[p1]
+                ex = q[s0, 0] - q[a, 0]
+                ey = q[s0, 1] - q[a, 1]
+                if ex * ex + ey * ey >= pull * pull:
+                    break
+                nxt = p1 - step
+                if nxt < 0 or nxt >= n:
+                    ok = False
+                    break
+                s1 = order[nxt]
+                if fam[s1] != fam[a] or idx[s1] != idx[a]:
+                    ok = False
+                    break
+                fx = q[s1, 0] - q[s0, 0]
+                fy = q[s1, 1] - q[s0, 1]
+                if fx * fx + fy * fy > gap_max * gap_max:
+                    ok = False
+                    break
+                p1 = nxt
+            last = p1 - step * (anchor - 1)
+            if not ok or last < 0 or last >= n:
                 why[0] += 1
                 continue
             for k in range(anchor - 1):
-                s0 = order[p - step * k]
-                s1 = order[p - step * (k + 1)]
+                s0 = order[p1 - step * k]
+                s1 = order[p1 - step * (k + 1)]
                 if fam[s1] != fam[a] or idx[s1] != idx[a]:
                     ok = False
                     break
@@ -349,8 +374,8 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
                 why[0] += 1
                 continue
             ai = order[last]
-            ux0 = q[a, 0] - q[ai, 0]
-            uy0 = q[a, 1] - q[ai, 1]
+            ux0 = q[order[p1], 0] - q[ai, 0]
+            uy0 = q[order[p1], 1] - q[ai, 1]
             l0 = math.sqrt(ux0 * ux0 + uy0 * uy0)
             if not l0 > 0.0:
                 why[1] += 1
@@ -360,7 +385,7 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
             sm = 0.0
             rm = 0.0
             for k in range(anchor):
-                sid = order[p - step * k]
+                sid = order[p1 - step * k]
                 ex = q[sid, 0] - q[a, 0]
                 ey = q[sid, 1] - q[a, 1]
                 sm += ex * ux0 + ey * uy0
@@ -370,7 +395,7 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
             sxx = 0.0
             sxr = 0.0
             for k in range(anchor):
-                sid = order[p - step * k]
+                sid = order[p1 - step * k]
                 ex = q[sid, 0] - q[a, 0]
                 ey = q[sid, 1] - q[a, 1]
                 ds = ex * ux0 + ey * uy0 - sm
@@ -382,7 +407,7 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
             kk = sxr / sxx
             cc = rm - kk * sm
             for k in range(anchor):
-                sid = order[p - step * k]
+                sid = order[p1 - step * k]
                 ex = q[sid, 0] - q[a, 0]
                 ey = q[sid, 1] - q[a, 1]
                 if abs(-ex * uy0 + ey * ux0 - (kk * (ex * ux0 + ey * uy0) + cc)) > lateral:
