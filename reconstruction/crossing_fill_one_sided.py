@@ -148,6 +148,7 @@ def fill_one_sided(
                               "beyond_reach": int(why[3]), "other_labels_disagree": int(why[4]),
                               "line_continues": int(why[5]), "sheet_check": 0}
     E = len(acc)
+    stats["ends_at_junctions"] = int(acc.sum())
     if E == 0:
         return _empty(stats)
     chk = np.flatnonzero(~acc & np.isfinite(c_q[:, 0]))
