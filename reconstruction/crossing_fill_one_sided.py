@@ -136,7 +136,7 @@ def fill_one_sided(
     qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
     fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
     ks = np.ascontiguousarray(index_samples, np.float64).reshape(-1)
-    n_ends, ends, acc, c_q, m_other, why = _k_ends(
+    n_ends, ends, acc, c_q, m_other, why, why_run = _k_ends(
         q, fam, idx, order, qj, lab, jsel, qs, fs, ks, float(cell_px), float(sigma_px),
         float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),
         int(options.anchor), float(math.sin(math.radians(options.min_angle_deg))), float(options.lateral_px * cell_px),
@@ -147,6 +147,10 @@ def fill_one_sided(
     stats["ends_rejected"] = {"anchors": int(why[0]), "anchors_crooked": int(why[1]), "no_run": int(why[2]),
                               "beyond_reach": int(why[3]), "other_labels_disagree": int(why[4]),
                               "line_continues": int(why[5]), "sheet_check": 0}
+    # the "no_run" ends by the disc test that failed: first disc (over the reach), then the re-centred one
+    stats["no_run"] = {"few": int(why_run[0]), "not_straight": int(why_run[1]), "parallel": int(why_run[2]), "one_side": int(why_run[3]),
+                       "centred_few": int(why_run[4]), "centred_not_straight": int(why_run[5]), "centred_parallel": int(why_run[6]),
+                       "centred_one_side": int(why_run[7])}
     E = len(acc)
     stats["ends_at_junctions"] = int(acc.sum())
     if E == 0:
@@ -210,7 +214,8 @@ def _run_crossing(ox, oy, ux, uy, mx, my, rad, f, qs, ks, x0, y0, gcell, gw, gh,
     """The other family's samples within rad of (mx, my): when at least 4 and one straight run (minor spread
     ≤ lateral), where its major axis crosses the line o + s·u: (s, sin θ, m) with m the run's label (the one
     index its labelled samples carry; UNLABELLED when none is labelled, −2**62 when they disagree); s NaN
-    when there is no such run."""
+    when there is no such run, and then the second value says why: 0 fewer than 4 samples, 1 not one
+    straight run, 2 parallel to the line, 3 not on both sides of the line."""
     cnt, cxm, cym, cxx, cxy, cyy = _other_run(mx, my, rad, f, qs, x0, y0, gcell, gw, gh, start, mid, items, hits)
     if cnt < 4:
         return np.nan, 0.0, UNLABELLED_K
@@ -219,7 +224,7 @@ def _run_crossing(ox, oy, ux, uy, mx, my, rad, f, qs, ks, x0, y0, gcell, gw, gh,
     lam_min = tr - det
     lam_max = tr + det
     if lam_min > lateral * lateral:
-        return np.nan, 0.0, UNLABELLED_K
+        return np.nan, 1.0, UNLABELLED_K
     if abs(cxy) > 1e-12:
         ex = lam_max - cyy
         ey = cxy
@@ -234,7 +239,7 @@ def _run_crossing(ox, oy, ux, uy, mx, my, rad, f, qs, ks, x0, y0, gcell, gw, gh,
     ny = ex / en
     den = ux * nx + uy * ny  # sin θ up to sign
     if abs(den) < 1e-6:
-        return np.nan, 0.0, UNLABELLED_K
+        return np.nan, 2.0, UNLABELLED_K
     s = ((cxm - ox) * nx + (cym - oy) * ny) / den
     # the other line runs through the crossing: samples on both sides of the line o + s·u
     neg = 0
@@ -247,7 +252,7 @@ def _run_crossing(ox, oy, ux, uy, mx, my, rad, f, qs, ks, x0, y0, gcell, gw, gh,
         else:
             pos += 1
     if through and (neg < 2 or pos < 2):
-        return np.nan, 0.0, UNLABELLED_K
+        return np.nan, 3.0, UNLABELLED_K
     m = UNLABELLED_K
     for h in range(cnt):
         k = ks[hits[h]]
@@ -302,7 +307,9 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
     s_c the crossing's centre along it), accepted (E,) (a labelled junction of this line ends it), c_q (E,
     2): the other family's crossing to check on light sheet k (NaN where none), m (E,): the other run's
     label (UNLABELLED: none), and the counts of ends rejected (5,): anchors missing or not one run, anchors
-    off their line, no crossing run ahead, crossing beyond reach or too acute, the run's labels disagree."""
+    off their line, no crossing run ahead, crossing beyond reach or too acute, the run's labels disagree, the
+    line continues beyond with another index; and (8,) the no-run ends by `_run_crossing`'s reason, first
+    disc (0–3) and re-centred disc (4–7)."""
     n = order.shape[0]
     cap = 2 * n
     ends = np.empty((cap, 6))
@@ -310,6 +317,7 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
     c_q = np.full((cap, 2), np.nan)
     m_out = np.full(cap, UNLABELLED_K, np.int64)
     why = np.zeros(6, np.int64)
+    why_run = np.zeros(8, np.int64)  # no run: the first disc's reason (0–3), the re-centred disc's (4–7)
     E = 0
     n_ends = 0
     gcell = max(gap_max, 4.0 * sigma, 2.0 * cell)
@@ -473,6 +481,7 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
                                         sx0, sy0, gcell, sgw, sgh, sstart, smid, sitems, hits, lateral, through)
             if not np.isfinite(s):
                 why[2] += 1
+                why_run[int(sin_t)] += 1
                 continue
             r2 = half_gap + sigma
             if s > 0.0 and s <= half_max:
@@ -480,6 +489,7 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
                                             sx0, sy0, gcell, sgw, sgh, sstart, smid, sitems, hits, lateral, through)
                 if not np.isfinite(s):
                     why[2] += 1
+                    why_run[4 + int(sin_t)] += 1
                     continue
             if not (s > 0.0 and sin_t >= sin_min and s <= half_gap / sin_t + cell and s < s_next):
                 why[3] += 1
@@ -500,7 +510,7 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
             c_q[E, 1] = oy + s * uy
             m_out[E] = m
             E += 1
-    return n_ends, ends[:E], acc[:E], c_q[:E], m_out[:E], why
+    return n_ends, ends[:E], acc[:E], c_q[:E], m_out[:E], why, why_run
 
 
 def with_one_sided(
