@@ -54,7 +54,7 @@ class ReconstructOptions:
     label: LabelOptions = LabelOptions()
     trace: TraceOptions = TraceOptions()
     crossing: CrossingFillOptions = CrossingFillOptions()
-    one_sided: OneSidedFillOptions = OneSidedFillOptions()  # decision 0099: from a labelled end to its crossing
+    one_sided: OneSidedFillOptions = OneSidedFillOptions()  # decision 0099: a labelled end to its crossing (with `crossing` on)
 
     def __post_init__(self) -> None:
         if self.labeller not in ("epipolar", "paper"):
@@ -193,8 +193,9 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
                             q_junction=obs.q_junction, junction_dir=obs.junction_dir, junction_labels=lab.labels, model=model, sigma_px=sigma,
                             cell_px=float(max(1, int(obs.stats.get("scale", 1)))),
                             depth_range_mm=(options.depth_min_mm, options.depth_max_mm), options=options.crossing)
-    if sl is not None and options.labeller == "epipolar" and options.one_sided.enabled:
-        # points from a labelled line's end up to the crossing that ends it (decision 0099)
+    if cp is not None and options.one_sided.enabled:
+        # points from a labelled line's end up to the crossing that ends it (decision 0099; with 0086's fill only:
+        # without it every gap's sides would be ends)
         cp = with_one_sided(cp, sl.q, obs.family, sl.index, sl.junction, q_samples=obs.q, family_samples=obs.family,
                             q_junction=obs.q_junction, junction_labels=lab.labels, model=model, sigma_px=sigma,
                             cell_px=float(max(1, int(obs.stats.get("scale", 1)))),

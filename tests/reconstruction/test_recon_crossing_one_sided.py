@@ -128,7 +128,7 @@ def test_the_crossing_is_checked_on_the_line_the_other_run_carries(stages):
 
 def test_pipeline_adds_them_for_the_default_labeller_only(small_scene):
     """reconstruct: the points are counted in the stats, the coverage does not fall, the paper labeller's
-    output is the same with the option on or off."""
+    output is the same with the option on or off, and nothing is added with decision 0086's fill off."""
     from benchmarks.bench_reconstruction import coverage
 
     sc = small_scene
@@ -146,3 +146,6 @@ def test_pipeline_adds_them_for_the_default_labeller_only(small_scene):
              for on in (False, True)}
     assert paper[True].stats["samples_one_sided_filled"] == 0
     assert np.array_equal(paper[True].points_proj, paper[False].points_proj)
+    # it extends decision 0086's fill: with that off, nothing is added either
+    no_0086 = reconstruct(sc.image, sc.procam, sc.pattern, options=dataclasses.replace(base, crossing=CrossingFillOptions(enabled=False)))
+    assert no_0086.stats["samples_one_sided_filled"] == 0 and no_0086.stats["samples_crossing_filled"] == 0
