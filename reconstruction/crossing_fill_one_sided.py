@@ -327,18 +327,26 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
     jx0, jy0, jgw, jgh, jstart, jitems, _ = sample_grid(qj, jkeep, _NO_TRACE, gcell)
     sx0, sy0, sgw, sgh, sstart, smid, sitems = _family_grid(qs, fs, gcell)
     hits = np.empty(sitems.shape[0], np.intp)
+    # 1. the breaks between consecutive samples of the order (another line, or farther than min_gap): brk[p]
+    # between p − 1 and p, both ends of the order included
+    brk = np.empty(n + 1, np.bool_)
+    brk[0] = True
+    brk[n] = True
+    for p in range(1, n):
+        a = order[p - 1]
+        b = order[p]
+        dx = q[b, 0] - q[a, 0]
+        dy = q[b, 1] - q[a, 1]
+        brk[p] = fam[b] != fam[a] or idx[b] != idx[a] or dx * dx + dy * dy > min_gap * min_gap
     for p in range(n):
+        if not (brk[p] or brk[p + 1]):
+            continue
         a = order[p]
         for side in range(2):
             step = 1 if side == 0 else -1  # 0: forward end (next sample beyond), 1: backward end
+            if not brk[p + 1 - side]:
+                continue  # not an end on this side
             nb = p + step
-            if nb >= 0 and nb < n:
-                b = order[nb]
-                if fam[b] == fam[a] and idx[b] == idx[a]:
-                    dx = q[b, 0] - q[a, 0]
-                    dy = q[b, 1] - q[a, 1]
-                    if dx * dx + dy * dy <= min_gap * min_gap:
-                        continue  # not an end
             n_ends += 1
             # 2. the anchors: `anchor` samples inward from the end, one run of this line, from the first one at
             # least `pull` from the end sample on (beyond the crossing's pull on the last samples)
