@@ -27,6 +27,7 @@ import numpy as np
 from calibration.errors import ReconstructionError
 from calibration.models import ProCam
 from reconstruction.crossing_fill import CrossingFillOptions, CrossingPoints, fill_crossings
+from reconstruction.crossing_fill_one_sided import OneSidedFillOptions, with_one_sided
 from reconstruction.extraction import ExtractOptions, GridObservation, extract_grid, sigma_for
 from reconstruction.geometry import triangulate_rays
 from reconstruction.labelling import LabelOptions, Labels, SampleLabels, TraceOptions, label_epipolar, label_paper, label_samples
@@ -53,6 +54,7 @@ class ReconstructOptions:
     label: LabelOptions = LabelOptions()
     trace: TraceOptions = TraceOptions()
     crossing: CrossingFillOptions = CrossingFillOptions()
+    one_sided: OneSidedFillOptions = OneSidedFillOptions()  # decision 0099: a labelled end to its crossing (with `crossing` on)
 
     def __post_init__(self) -> None:
         if self.labeller not in ("epipolar", "paper"):
@@ -191,6 +193,13 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
                             q_junction=obs.q_junction, junction_dir=obs.junction_dir, junction_labels=lab.labels, model=model, sigma_px=sigma,
                             cell_px=float(max(1, int(obs.stats.get("scale", 1)))),
                             depth_range_mm=(options.depth_min_mm, options.depth_max_mm), options=options.crossing)
+    if cp is not None and options.one_sided.enabled:
+        # points from a labelled line's end up to the crossing that ends it (decision 0099; with 0086's fill only:
+        # without it every gap's sides would be ends)
+        cp = with_one_sided(cp, sl.q, obs.family, sl.index, sl.junction, q_samples=obs.q, family_samples=obs.family,
+                            q_junction=obs.q_junction, junction_labels=lab.labels, model=model, sigma_px=sigma,
+                            cell_px=float(max(1, int(obs.stats.get("scale", 1)))),
+                            depth_range_mm=(options.depth_min_mm, options.depth_max_mm), options=options.one_sided)
     t_label = time.perf_counter()
     result = _triangulate(image, obs, lab, sl, model, xy_cam_j, options, cp)
     t_tri = time.perf_counter()
@@ -276,7 +285,7 @@ def _triangulate(
         "labelling_margin_px": float(model.margin.margin_px),
         "labeller": options.labeller,
         # the crossing points (decision 0086) are labelled samples too
-        "samples_labelled": int(sample_stats.get("samples_labelled", 0)) + (int(cp.stats["samples_crossing_filled"]) if cp is not None else 0),
+        "samples_labelled": int(sample_stats.get("samples_labelled", 0)) + (int(len(cp.index)) if cp is not None else 0),
         "samples_left_out": {k: int(sample_stats.get(k, 0)) for k in ("mixing_zone", "samples_unseeded", "cut_profile")},
         "samples_snapped": int(sample_stats.get("snapped_to_junction_line", 0)),
         "samples_from_crossings": int(sample_stats.get("samples_from_crossings", 0)),
@@ -285,6 +294,7 @@ def _triangulate(
         "samples_surface_labels": int(sample_stats.get("samples_surface_labels", 0)),
         "samples_piece_junctions": int(sample_stats.get("samples_piece_junctions", 0)),
         "samples_crossing_filled": int(cp.stats["samples_crossing_filled"]) if cp is not None else 0,
+        "samples_one_sided_filled": int(cp.stats.get("samples_one_sided_filled", 0)) if cp is not None else 0,
         "traces_conflicting": int(sample_stats.get("traces_conflicting", 0)),
         "components_split": int(lab.stats.get("components_split", 0)),
     }
