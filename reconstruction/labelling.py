@@ -578,6 +578,8 @@ class TraceOptions:
         labelled samples' depths within surface_radius junction steps beyond the piece's half extent, with
         neighbours on all sides of the piece and a residual far below one sheet step; surface_rounds rounds
         (`reconstruction.surface_labels`, decision 0093).
+    t_nodes: piece_junctions' nodes with one family through (T's) join its graph; the through line's pieces
+        at a T are labelled only at the pattern's rim (`reconstruction.t_nodes`, decision 0098).
     """
 
     mix_sigma: float = 2.0
@@ -611,6 +613,7 @@ class TraceOptions:
     surface_labels: bool = True
     surface_rounds: int = 3
     surface_radius: float = 1.0
+    t_nodes: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -986,7 +989,7 @@ def label_samples(
                                        anchor=options.fill_anchor,
                                        reach_px=0.5 * (cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                               min_angle_deg=options.continue_gap_deg or 45.0)),
-                                       lateral_px=options.seed_lateral_px * cell, q_out=q_out)
+                                       lateral_px=options.seed_lateral_px * cell, q_out=q_out, t_nodes=options.t_nodes)
             stats["samples_piece_junctions"] = pj["samples"]
         if options.surface_labels and options.cross_pieces and model is not None and grid is not None:
             # pieces inside a labelled surface that predicts their index (decision 0093)

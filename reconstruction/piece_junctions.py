@@ -984,8 +984,15 @@ def label_piece_junctions(
     q_out: np.ndarray | None = None,
     label_options=None,
     debug: dict | None = None,
+    t_nodes: bool = False,
+    t_ends: str = "refit",
 ) -> dict:
     """Label unlabelled pieces from junctions built at the crossings of pieces (module doc).
+
+    t_nodes: nodes with one family through (T's) join the graph too; the through line's pieces at a T are
+    written only at the pattern's rim, their line fitted without the T node ("refit"; `reconstruction.t_nodes`,
+    decision 0098; the compiled path only). Measurement switch t_ends: "drop" (the through line's samples within
+    trim_px of a T stay unlabelled), "keep" (moved as at an X).
 
     q (P, 2) camera px, fam (P,) 1/2 of all samples; the traces as `labelling.label_samples` builds them: sid
     (n,) sample ids by piece and position, piece (n,) non-decreasing piece ids, ts (n,) position along the piece
@@ -1030,7 +1037,11 @@ def label_piece_junctions(
     if continue_px is None:
         continue_px = reach_px
     xy, node_end, n_assoc, n_not = _k_nodes(E, U, fe, h, c, float(merge_px), float(reach_px), float(lateral_px), float(continue_px),
-                                            bool(x_both), q, fam, *grid)
+                                            bool(x_both and not t_nodes), q, fam, *grid)
+    if t_nodes:  # decision 0098: which family stops at each node
+        from reconstruction.t_nodes import t_node_stems, through_end_samples, through_kept, through_refit
+
+        stem = t_node_stems(xy, node_end, E, U, fe, float(lateral_px), float(continue_px), q, fam, *grid)
     n_nodes = len(xy)
     stats["nodes"] = n_nodes
     if n_assoc >= 0:
@@ -1078,6 +1089,12 @@ def label_piece_junctions(
         debug.update(xy=xy, labels=np.where(ok_node[:, None], L, UNLABELLED))
     # 7. the pieces between two labelled nodes that agree on their index
     sel, mom = _k_select(ok_node, L, ed, a_j, b_j, fam_s, cand, labelled, first, last, ts, q, sid, xy, float(trim_px))
+    if t_nodes and len(sel):  # decision 0098: no half-hidden through line at a T off the pattern's rim
+        keep = through_kept(sel, a_j, b_j, fam_s, stem, L, int(model.index_min), int(model.index_max))
+        sel, mom = sel[keep], mom[keep]
+        t_rows = np.zeros(len(sel), np.int64) if t_ends == "keep" else (
+            through_refit(sel, mom, ed, a_j, b_j, fam_s, cand, first, last, ts, q, sid, xy, stem, float(trim_px), 2)
+            if t_ends == "refit" else np.full(len(sel), 2, np.int64))
     if len(sel) == 0:
         return stats
     # the fit's direction with NumPy's arctan2 (its SIMD version differs from the C library's in the last bit)
@@ -1086,8 +1103,16 @@ def label_piece_junctions(
     np.cos(ang, out=tdir[:, 0])
     np.sin(ang, out=tdir[:, 1])
     move = q_out is not None
+    if t_nodes:  # decision 0098: the through line's ends at a T not refitted stay as they were
+        keep_s = through_end_samples(sel, ed, a_j, b_j, fam_s, cand, first, last, ts, sid, stem, float(trim_px), t_rows == 2)
+        keep_v = (index[keep_s].copy(), seed_jid[keep_s].copy(), q_out[keep_s].copy() if move else None)
     n_pc, n_s, n_mv = _k_write(sel, mom, tdir, L, ed, a_j, b_j, fam_s, cand, first, last, ts, q, sid, xy, float(trim_px),
                                float(lateral_px), move, q_out if move else np.empty((0, 2)), index, seed_jid)
+    if t_nodes and len(keep_s):
+        n_s -= int(np.isfinite(index[keep_s]).sum() - np.isfinite(keep_v[0]).sum())
+        index[keep_s], seed_jid[keep_s] = keep_v[0], keep_v[1]
+        if move:
+            q_out[keep_s] = keep_v[2]
     if n_mv >= 0:
         stats["samples_moved"] = int(n_mv)
     stats["pieces"] = int(n_pc)
