@@ -173,3 +173,27 @@ def test_refit_leaves_the_T_node_out_of_the_through_line():
     # with the T node as an X (stem −1) the piece is not refitted; with too few inner samples it is flagged
     assert through_refit(args[0], np.zeros((1, 5)), *args[1:], np.array([-1, -1]), 1.5, 2).tolist() == [0]
     assert through_refit(args[0], np.zeros((1, 5)), *args[1:], np.array([1, -1]), 1.5, 20).tolist() == [2]
+
+
+@pytest.mark.parametrize("t_nodes, over1_max", [(False, 0.5), (True, None)])
+def test_t_nodes_off_by_default_keep_an_ill_posed_placement_right(t_nodes, over1_max):
+    """The placement sweep's row baseline 100 mm, direction 30° (ill-posed: junctions a few labels apart share an
+    epipolar line): with T nodes in the graph, T's at silhouettes join two surfaces and whole components take
+    wrong labels (decision 0098, the lead's section: 5.2 % of the points more than 1 % off). Off, the default,
+    the share stays within the issue's 0.5 %; on, it does not (the test shows why the default is off)."""
+    from benchmarks._common import evaluate_grid, pooled, sweep_procam
+    from drivers.sim import RenderOptions, SimWorld, preset
+    from reconstruction.patterns import GridPattern
+
+    pattern = GridPattern()
+    rig = preset("tabletop", truth=sweep_procam(100.0, 30.0))
+    world = SimWorld(rig, options=RenderOptions(noise_grey=2.0, supersample=2), seed=0)
+    image = world.render(pattern.render(rig.procam.projector.width, rig.procam.projector.height))
+    opts = ReconstructOptions(depth_min_mm=rig.depth_range_mm[0], depth_max_mm=rig.depth_range_mm[1])
+    assert opts.trace.t_nodes is False  # the default
+    opts = dataclasses.replace(opts, trace=dataclasses.replace(opts.trace, t_nodes=t_nodes))
+    p = pooled([evaluate_grid(reconstruct(image, rig.procam, pattern, options=opts), world.truth, pattern)])
+    if over1_max is not None:
+        assert p["over1_pct"] <= over1_max
+    else:
+        assert p["over1_pct"] > 1.0
