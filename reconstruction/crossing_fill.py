@@ -82,10 +82,32 @@ class CrossingPoints:
     index: np.ndarray
     junction: np.ndarray
     stats: dict
+    shared: FillShared | None = None
 
 
-def _empty(stats: dict) -> CrossingPoints:
-    return CrossingPoints(np.zeros((0, 2)), np.zeros(0, np.intp), np.zeros(0), np.zeros(0, np.int64), stats)
+@dataclass(frozen=True, eq=False)
+class FillShared:
+    """What `fill_crossings` computed that decision 0099's one-sided fill needs again on the same frame:
+    `inputs`, the arrays it was called with (q, family, index, q_samples, family_samples, q_junction,
+    junction_labels; reused only for these very objects, unchanged), n = len(q); order: the labelled samples
+    of q in order along their lines (`_k_order`, `_sorted_by_key`); gcell: the bucket grids' cell (camera
+    px); grids: `_k_grids`' output on that cell (None when `fill_crossings` stopped before building them)."""
+
+    inputs: tuple
+    n: int
+    order: np.ndarray
+    gcell: float
+    grids: tuple | None
+
+
+def _empty(stats: dict, shared: FillShared | None = None) -> CrossingPoints:
+    return CrossingPoints(np.zeros((0, 2)), np.zeros(0, np.intp), np.zeros(0), np.zeros(0, np.int64), stats, shared)
+
+
+def grid_cell_px(gap_max: float, sigma_px: float, cell_px: float) -> float:
+    """The bucket grids' cell of the crossing searches (camera px): the longest gap a crossing leaves, at
+    least 4σ and two sampling steps (a search reads the 3×3 cells around a point)."""
+    return max(gap_max, 4.0 * sigma_px, 2.0 * cell_px)
 
 
 def fill_crossings(
@@ -116,6 +138,7 @@ def fill_crossings(
     stats = {"crossing_gaps": 0, "crossing_gaps_filled": 0, "samples_crossing_filled": 0, "crossing_gaps_rejected": {}}
     if not options.enabled:
         return _empty(stats)
+    inputs = (q, family, index, q_samples, family_samples, q_junction, junction_labels)
     q = np.ascontiguousarray(q, np.float64).reshape(-1, 2)
     fam = np.ascontiguousarray(np.asarray(family).reshape(-1), np.intp)
     idx = np.ascontiguousarray(index, np.float64).reshape(-1)
@@ -123,18 +146,20 @@ def fill_crossings(
     d1, d2 = _family_directions(model)
     sel, key = _k_order(q, fam, idx, d1, d2)
     order = _sorted_by_key(sel, key)
+    gap_max = cell_px + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.trim_sigma,
+                                        min_angle_deg=options.min_angle_deg)
+    gcell = grid_cell_px(gap_max, sigma_px, cell_px)
     if len(order) < 2 * options.anchor + 2:
-        return _empty(stats)
+        return _empty(stats, FillShared(inputs, len(q), order, gcell, None))
     lab = np.ascontiguousarray(junction_labels, np.int64).reshape(-1, 2)
     qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
     jdir = np.ascontiguousarray(junction_dir, np.float64).reshape(-1, 2, 2)
-    jsel = np.flatnonzero(lab[:, 0] != UNLABELLED)
-    gap_max = cell_px + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.trim_sigma,
-                                        min_angle_deg=options.min_angle_deg)
     qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
     fs = fam if family_samples is family else np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
+    grids = _k_grids(qj, lab, qs, fs, float(gcell))
+    shared = FillShared(inputs, len(q), order, gcell, grids)
     n_gaps, gaps, acc, c_q, why = _k_gaps(
-        q, fam, idx, order, qj, jdir, lab, jsel.astype(np.intp), qs, fs, float(cell_px), float(sigma_px),
+        q, fam, idx, order, qj, jdir, lab, qs, *grids, float(gcell), float(cell_px), float(sigma_px),
         float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),
         int(options.anchor), float(np.deg2rad(options.max_turn_deg)),
         float(options.lateral_px * cell_px))
@@ -143,7 +168,7 @@ def fill_crossings(
                                        "turn": int(why[3]), "lateral": int(why[4]), "no_crossing": 0}
     G = len(acc)
     if G == 0:
-        return _empty(stats)
+        return _empty(stats, shared)
     # 3. (second half) the other family's crossings, on light sheet k
     chk = np.flatnonzero(~acc & np.isfinite(c_q[:, 0]))
     if len(chk):
@@ -156,11 +181,24 @@ def fill_crossings(
     stats["crossing_gaps_filled"] = int(len(g))
     stats["crossing_gaps_rejected"]["no_crossing"] = int(G - len(g))
     if len(g) == 0:
-        return _empty(stats)
+        return _empty(stats, shared)
     # 4. points one sampling step apart strictly inside the gap, on the blend of the two tangents
     q_new, f_new, k_new, j_new = _k_points(q, fam, idx, np.ascontiguousarray(junction, np.int64).reshape(-1), gaps, acc, float(cell_px))
     stats["samples_crossing_filled"] = int(len(q_new))
-    return CrossingPoints(q_new, f_new, k_new, j_new, stats)
+    return CrossingPoints(q_new, f_new, k_new, j_new, stats, shared)
+
+
+@njit
+def _k_grids(qj, lab, qs, fs, gcell):
+    """The two bucket grids of the crossing searches (decisions 0086, 0099), cell gcell: the labelled
+    junctions' (`sample_grid` of qj where lab[:, 0] is not UNLABELLED: x0, y0, gw, gh, start, items) and
+    every extracted sample's, split by family (`_family_grid`: x0, y0, gw, gh, start, mid, items)."""
+    jkeep = np.empty(qj.shape[0], np.bool_)
+    for j in range(qj.shape[0]):
+        jkeep[j] = lab[j, 0] != UNLABELLED
+    jx0, jy0, jgw, jgh, jstart, jitems, _ = sample_grid(qj, jkeep, _NO_TRACE, gcell)
+    sx0, sy0, sgw, sgh, sstart, smid, sitems = _family_grid(qs, fs, gcell)
+    return jx0, jy0, jgw, jgh, jstart, jitems, sx0, sy0, sgw, sgh, sstart, smid, sitems
 
 
 def _family_directions(model: RigModel) -> tuple[np.ndarray, np.ndarray]:
@@ -214,6 +252,57 @@ def _k_order(q, fam, idx, d1, d2):
         i = sel[p]
         key[p] = (fam[i] * (kmax - kmin + 2.0) + (idx[i] - kmin)) * span + t[p]
     return sel[:m], key
+
+
+def order_with_appended(order0: np.ndarray, n0: int, q: np.ndarray, fam: np.ndarray, idx: np.ndarray,
+                        d1: np.ndarray, d2: np.ndarray) -> np.ndarray:
+    """`_sorted_by_key(*_k_order(q, fam, idx, d1, d2))` when order0 is that order over the first n0 samples
+    (the same arrays: q[:n0], fam[:n0], idx[:n0]) and the samples from n0 on were appended: only the
+    appended ones are sorted, then merged into order0 in O(P) (`_k_merge_order`). When the keys of the whole
+    set are distinct the order by key is unique, so any sort gives it and this one does; else (two keys
+    equal: the argsort's tie order decides) the full sort."""
+    merged, ok, sel, key = _k_merge_order(order0, int(n0), q, fam, idx, d1, d2)
+    if ok:
+        return merged
+    return _sorted_by_key(sel, key)
+
+
+@njit
+def _k_merge_order(order0, n0, q, fam, idx, d1, d2):
+    """`order_with_appended`'s kernel: every sample's key (`_k_order` over all of q, so the keys are those of
+    the full sort), the appended ones (ids ≥ n0) sorted, merged with order0 by key; ok False unless order0
+    names exactly the labelled samples below n0 and the merged keys increase strictly. Also returns
+    `_k_order`'s sel and key for the fallback."""
+    sel, key = _k_order(q, fam, idx, d1, d2)
+    m = sel.shape[0]
+    kid = np.full(q.shape[0], np.nan)  # key by sample id (NaN: not labelled; fails the strict test)
+    n_old = 0
+    for p in range(m):
+        kid[sel[p]] = key[p]
+        if sel[p] < n0:
+            n_old += 1
+    out = np.empty(m, np.intp)
+    if n_old != order0.shape[0]:
+        return out, False, sel, key
+    app = sel[n_old:]  # sel increases with the sample id: the appended ones are its tail
+    app_key = key[n_old:]
+    o = np.argsort(app_key)
+    i = 0
+    j = 0
+    last = -np.inf
+    for t in range(m):
+        if j >= app.shape[0] or (i < n_old and kid[order0[i]] < app_key[o[j]]):
+            s = order0[i]
+            i += 1
+        else:
+            s = app[o[j]]
+            j += 1
+        k = kid[s]
+        if not k > last:
+            return out, False, sel, key
+        last = k
+        out[t] = s
+    return out, True, sel, key
 
 
 def _sorted_by_key(sel: np.ndarray, key: np.ndarray) -> np.ndarray:
@@ -307,14 +396,16 @@ def _curve_r(s, L, ka, ca, kb, cb):
 
 
 @njit
-def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_gap, gap_max, half_gap, anchor, max_turn, lateral):
+def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, jitems, sx0, sy0, sgw, sgh, sstart, smid, sitems,
+            gcell, cell, sigma, min_gap, gap_max, half_gap, anchor, max_turn, lateral):
     """Steps 1–3 of the module doc over the ordered labelled samples `order`: the gaps between consecutive
     samples of one line, the two sides' tangent fits and tests, and the crossing in the gap. Returns the
     number of gaps, per gap that passed the tangent tests (G, 8) [first sample id, u (2), L, ka, ca, kb,
     cb] (u the chord's direction from the first sample, L its length, r = k·s + c each side's tangent
     across the chord), accepted (G,) bool (a labelled junction of this line names the gap), c_q (G, 2):
     where the other family's straight run crosses the curve (NaN where none), to be checked on the light
-    sheet, and the counts of gaps rejected (5,): anchors missing, broken, crooked, turn, lateral."""
+    sheet, and the counts of gaps rejected (5,): anchors missing, broken, crooked, turn, lateral. The
+    labelled junctions' grid (jx0 … jitems) and the samples' (sx0 … sitems): `_k_grids` on cell gcell."""
     n = order.shape[0]
     cap = max(n - 1, 1)  # at most one gap per consecutive pair
     gaps = np.empty((cap, 8))
@@ -323,12 +414,6 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
     c_q = np.full((cap, 2), np.nan)
     G = 0
     n_gaps = 0
-    gcell = max(gap_max, 4.0 * sigma, 2.0 * cell)
-    jkeep = np.zeros(qj.shape[0], np.bool_)
-    for j in jsel:
-        jkeep[j] = True
-    jx0, jy0, jgw, jgh, jstart, jitems, _ = sample_grid(qj, jkeep, _NO_TRACE, gcell)
-    sx0, sy0, sgw, sgh, sstart, smid, sitems = _family_grid(qs, fs, gcell)
     hits = np.empty(sitems.shape[0], np.intp)  # the other family's samples in the disc, in search order
     for p in range(n - 1):
         a = order[p]
