@@ -131,7 +131,7 @@ def fill_one_sided(
     if shared is not None and shared.n == len(q):
         order = shared.order  # nothing appended: the same arrays, the same order
     elif shared is not None and shared.n < len(q):
-        order = order_with_appended(shared.order, shared.n, q, fam, idx, d1, d2)
+        order = order_with_appended(shared, q, fam, idx, d1, d2)
     else:
         sel, key = _k_order(q, fam, idx, d1, d2)
         order = _sorted_by_key(sel, key)
