@@ -239,7 +239,7 @@ def _k_order(q, fam, idx, d1, d2):
 @njit
 def _k_order_range(q, fam, idx, d1, d2):
     """`_k_order`'s sel and key, and the key's range (3,): the smallest and largest line index and the
-    largest |position| (a sample inside it gets its key from the same formula: `_k_merge_appended`)."""
+    largest |position| (an appended sample inside it gets its key from the same formula: `_k_appended_keys`)."""
     n = q.shape[0]
     sel = np.empty(n, np.intp)
     m = 0

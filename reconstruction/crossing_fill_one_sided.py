@@ -540,11 +540,14 @@ def with_one_sided(
     """Decision 0086's points `cp` (None: none) followed by `fill_one_sided`'s, computed over the label
     stage's samples (q, family, index, junction: `SampleLabels.q`, the observation's family, `.index`,
     `.junction`) with `cp`'s appended; stats: cp's, with "samples_one_sided_filled" and "one_sided" (the
-    call's own counts). kwargs: `fill_one_sided`'s keywords except index_samples (the label stage's index)."""
+    call's own counts). kwargs: `fill_one_sided`'s keywords except index_samples (the label stage's index)
+    and shared: `cp.shared` (the order and grids `fill_crossings` built) is passed on when the arrays here
+    are the very objects it was computed from."""
     fam = np.asarray(family).reshape(-1)
     sh = cp.shared if cp is not None else None
-    if sh is not None and not all(a is b for a, b in zip(sh.inputs, (q, family, index, kwargs.get("q_samples"), kwargs.get("family_samples"),
-                                                                     kwargs.get("q_junction"), kwargs.get("junction_labels")))):
+    same = (q, family, index, kwargs.get("q_samples"), kwargs.get("family_samples"), kwargs.get("q_junction"),
+            kwargs.get("junction_labels"))
+    if sh is not None and not all(a is b for a, b in zip(sh.inputs, same)):
         sh = None  # computed from other arrays: not reused
     if cp is not None and len(cp.index):
         q_all = np.concatenate([np.asarray(q, np.float64).reshape(-1, 2), cp.q])
