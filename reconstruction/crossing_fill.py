@@ -82,10 +82,36 @@ class CrossingPoints:
     index: np.ndarray
     junction: np.ndarray
     stats: dict
+    shared: FillShared | None = None
 
 
-def _empty(stats: dict) -> CrossingPoints:
-    return CrossingPoints(np.zeros((0, 2)), np.zeros(0, np.intp), np.zeros(0), np.zeros(0, np.int64), stats)
+@dataclass(frozen=True, eq=False)
+class FillShared:
+    """What `fill_crossings` computed that decision 0099's one-sided fill needs again on the same frame:
+    `inputs`, the arrays it was called with (q, family, index, q_samples, family_samples, q_junction,
+    junction_labels; reused only for these very objects, unchanged), n = len(q); order: the labelled samples
+    of q in order along their lines (`_k_order`, `_sorted_by_key`), key: their keys in that order, key_range:
+    (smallest, largest line index, largest |position|) (`_k_order_range`); gcell: the bucket grids' cell
+    (camera px); grids: `_k_grids`' output on that cell (None when `fill_crossings` stopped before building
+    them)."""
+
+    inputs: tuple
+    n: int
+    order: np.ndarray
+    key: np.ndarray
+    key_range: np.ndarray
+    gcell: float
+    grids: tuple | None
+
+
+def _empty(stats: dict, shared: FillShared | None = None) -> CrossingPoints:
+    return CrossingPoints(np.zeros((0, 2)), np.zeros(0, np.intp), np.zeros(0), np.zeros(0, np.int64), stats, shared)
+
+
+def grid_cell_px(gap_max: float, sigma_px: float, cell_px: float) -> float:
+    """The bucket grids' cell of the crossing searches (camera px): the longest gap a crossing leaves, at
+    least 4σ and two sampling steps (a search reads the 3×3 cells around a point)."""
+    return max(gap_max, 4.0 * sigma_px, 2.0 * cell_px)
 
 
 def fill_crossings(
@@ -116,25 +142,28 @@ def fill_crossings(
     stats = {"crossing_gaps": 0, "crossing_gaps_filled": 0, "samples_crossing_filled": 0, "crossing_gaps_rejected": {}}
     if not options.enabled:
         return _empty(stats)
+    inputs = (q, family, index, q_samples, family_samples, q_junction, junction_labels)
     q = np.ascontiguousarray(q, np.float64).reshape(-1, 2)
     fam = np.ascontiguousarray(np.asarray(family).reshape(-1), np.intp)
     idx = np.ascontiguousarray(index, np.float64).reshape(-1)
     # 1. each line's labelled samples in order along its family's direction (the rig's prediction)
     d1, d2 = _family_directions(model)
-    sel, key = _k_order(q, fam, idx, d1, d2)
-    order = _sorted_by_key(sel, key)
+    sel, key, key_range = _k_order_range(q, fam, idx, d1, d2)
+    order, key_sorted = _sorted_with_keys(sel, key)
+    gap_max = cell_px + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.trim_sigma,
+                                        min_angle_deg=options.min_angle_deg)
+    gcell = grid_cell_px(gap_max, sigma_px, cell_px)
     if len(order) < 2 * options.anchor + 2:
-        return _empty(stats)
+        return _empty(stats, FillShared(inputs, len(q), order, key_sorted, key_range, gcell, None))
     lab = np.ascontiguousarray(junction_labels, np.int64).reshape(-1, 2)
     qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
     jdir = np.ascontiguousarray(junction_dir, np.float64).reshape(-1, 2, 2)
-    jsel = np.flatnonzero(lab[:, 0] != UNLABELLED)
-    gap_max = cell_px + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.trim_sigma,
-                                        min_angle_deg=options.min_angle_deg)
     qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
     fs = fam if family_samples is family else np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
+    grids = _k_grids(qj, lab, qs, fs, float(gcell))
+    shared = FillShared(inputs, len(q), order, key_sorted, key_range, gcell, grids)
     n_gaps, gaps, acc, c_q, why = _k_gaps(
-        q, fam, idx, order, qj, jdir, lab, jsel.astype(np.intp), qs, fs, float(cell_px), float(sigma_px),
+        q, fam, idx, order, qj, jdir, lab, qs, *grids, float(gcell), float(cell_px), float(sigma_px),
         float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),
         int(options.anchor), float(np.deg2rad(options.max_turn_deg)),
         float(options.lateral_px * cell_px))
@@ -143,7 +172,7 @@ def fill_crossings(
                                        "turn": int(why[3]), "lateral": int(why[4]), "no_crossing": 0}
     G = len(acc)
     if G == 0:
-        return _empty(stats)
+        return _empty(stats, shared)
     # 3. (second half) the other family's crossings, on light sheet k
     chk = np.flatnonzero(~acc & np.isfinite(c_q[:, 0]))
     if len(chk):
@@ -156,11 +185,24 @@ def fill_crossings(
     stats["crossing_gaps_filled"] = int(len(g))
     stats["crossing_gaps_rejected"]["no_crossing"] = int(G - len(g))
     if len(g) == 0:
-        return _empty(stats)
+        return _empty(stats, shared)
     # 4. points one sampling step apart strictly inside the gap, on the blend of the two tangents
     q_new, f_new, k_new, j_new = _k_points(q, fam, idx, np.ascontiguousarray(junction, np.int64).reshape(-1), gaps, acc, float(cell_px))
     stats["samples_crossing_filled"] = int(len(q_new))
-    return CrossingPoints(q_new, f_new, k_new, j_new, stats)
+    return CrossingPoints(q_new, f_new, k_new, j_new, stats, shared)
+
+
+@njit
+def _k_grids(qj, lab, qs, fs, gcell):
+    """The two bucket grids of the crossing searches (decisions 0086, 0099), cell gcell: the labelled
+    junctions' (`sample_grid` of qj where lab[:, 0] is not UNLABELLED: x0, y0, gw, gh, start, items) and
+    every extracted sample's, split by family (`_family_grid`: x0, y0, gw, gh, start, mid, items)."""
+    jkeep = np.empty(qj.shape[0], np.bool_)
+    for j in range(qj.shape[0]):
+        jkeep[j] = lab[j, 0] != UNLABELLED
+    jx0, jy0, jgw, jgh, jstart, jitems, _ = sample_grid(qj, jkeep, _NO_TRACE, gcell)
+    sx0, sy0, sgw, sgh, sstart, smid, sitems = _family_grid(qs, fs, gcell)
+    return jx0, jy0, jgw, jgh, jstart, jitems, sx0, sy0, sgw, sgh, sstart, smid, sitems
 
 
 def _family_directions(model: RigModel) -> tuple[np.ndarray, np.ndarray]:
@@ -190,6 +232,14 @@ def _k_order(q, fam, idx, d1, d2):
     """The labelled samples (finite index and position, family 1 or 2) and their sort key: family, line index
     and position along the family's direction (d1, d2) as one float, line-major (indices are integers and
     the positions span less than `span`). NumPy's argsort of the key is faster than numba's."""
+    sel, key, _r = _k_order_range(q, fam, idx, d1, d2)
+    return sel, key
+
+
+@njit
+def _k_order_range(q, fam, idx, d1, d2):
+    """`_k_order`'s sel and key, and the key's range (3,): the smallest and largest line index and the
+    largest |position| (an appended sample inside it gets its key from the same formula: `_k_appended_keys`)."""
     n = q.shape[0]
     sel = np.empty(n, np.intp)
     m = 0
@@ -212,8 +262,90 @@ def _k_order(q, fam, idx, d1, d2):
     key = np.empty(m)
     for p in range(m):
         i = sel[p]
-        key[p] = (fam[i] * (kmax - kmin + 2.0) + (idx[i] - kmin)) * span + t[p]
-    return sel[:m], key
+        key[p] = _order_key(fam[i], idx[i], t[p], kmin, kmax, span)
+    rng = np.empty(3)
+    rng[0] = kmin
+    rng[1] = kmax
+    rng[2] = tmax
+    return sel[:m], key, rng
+
+
+@njit(inline="always")
+def _order_key(f, k, t, kmin, kmax, span):
+    """The sort key of a sample of family f, index k, position t (`_k_order`)."""
+    return (f * (kmax - kmin + 2.0) + (k - kmin)) * span + t
+
+
+def order_with_appended(shared: FillShared, q: np.ndarray, fam: np.ndarray, idx: np.ndarray,
+                        d1: np.ndarray, d2: np.ndarray) -> np.ndarray:
+    """`_sorted_by_key(*_k_order(q, fam, idx, d1, d2))` when q[:n], fam[:n], idx[:n] (n = shared.n) are the
+    arrays `shared.order` was computed from and the samples from n on were appended, by sorting only the
+    appended ones and merging them into shared.order in O(P) (`_k_merge`). Exact: when the appended samples
+    leave the key's range (line indices, largest |position|) as it was, every key is the one the full sort
+    computes, the old ones' are shared.key; when all keys are distinct the order by key is unique, so the
+    merge gives the full sort's order. Else (the range grows, or two keys are equal and the argsort's tie
+    order decides) the full sort."""
+    app, app_key, ok = _k_appended_keys(shared.key_range, int(shared.n), q, fam, idx, d1, d2)
+    if ok:
+        app, app_key = _sorted_with_keys(app, app_key)
+        merged, ok = _k_merge(shared.order, shared.key, app, app_key)
+        if ok:
+            return merged
+    sel, key = _k_order(q, fam, idx, d1, d2)
+    return _sorted_by_key(sel, key)
+
+
+@njit
+def _k_appended_keys(key_range, n0, q, fam, idx, d1, d2):
+    """The appended samples (ids ≥ n0) that take part in the order (as `_k_order_range`) and their keys with
+    the old set's range key_range = (kmin, kmax, tmax); ok False when one lies outside that range (the full
+    sort's keys would differ)."""
+    kmin = key_range[0]
+    kmax = key_range[1]
+    tmax = key_range[2]
+    span = 2.0 * (tmax + 1.0)
+    N = q.shape[0]
+    app = np.empty(max(N - n0, 0), np.intp)
+    app_key = np.empty(max(N - n0, 0))
+    m = 0
+    for i in range(n0, N):
+        if (fam[i] == 1 or fam[i] == 2) and np.isfinite(idx[i]) and np.isfinite(q[i, 0]) and np.isfinite(q[i, 1]):
+            if fam[i] == 1:
+                t = q[i, 0] * d1[0] + q[i, 1] * d1[1]
+            else:
+                t = q[i, 0] * d2[0] + q[i, 1] * d2[1]
+            if idx[i] < kmin or idx[i] > kmax or abs(t) > tmax:
+                return app[:0], app_key[:0], False
+            app[m] = i
+            app_key[m] = _order_key(fam[i], idx[i], t, kmin, kmax, span)
+            m += 1
+    return app[:m], app_key[:m], True
+
+
+@njit
+def _k_merge(order0, key0, order1, key1):
+    """Two orders with their keys (each non-decreasing) merged by key; ok False unless the merged keys
+    increase strictly (then the merge is the one order by key)."""
+    n0 = order0.shape[0]
+    n1 = order1.shape[0]
+    out = np.empty(n0 + n1, np.intp)
+    i = 0
+    j = 0
+    last = -np.inf
+    for t in range(n0 + n1):
+        if j >= n1 or (i < n0 and key0[i] < key1[j]):
+            s = order0[i]
+            k = key0[i]
+            i += 1
+        else:
+            s = order1[j]
+            k = key1[j]
+            j += 1
+        if not k > last:
+            return out, False
+        last = k
+        out[t] = s
+    return out, True
 
 
 def _sorted_by_key(sel: np.ndarray, key: np.ndarray) -> np.ndarray:
@@ -222,16 +354,21 @@ def _sorted_by_key(sel: np.ndarray, key: np.ndarray) -> np.ndarray:
     bits replaced by its position (b bits hold len(key) − 1); when the remaining high bits differ between
     every two neighbours of the sorted list, the keys are distinct and that is the one order by key, the
     argsort's; else (keys within ~2^b ulp of each other, or a key ≤ 0) the argsort itself."""
+    return _sorted_with_keys(sel, key)[0]
+
+
+def _sorted_with_keys(sel: np.ndarray, key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`_sorted_by_key`'s order and the keys in that order."""
     n = len(key)
-    if n < 2:
-        return sel[np.argsort(key)]
-    b = int(n - 1).bit_length()
-    packed, ok = _k_pack(key, b)
-    if ok:
-        order, ok = _k_unpack(np.sort(packed), sel, b)
+    if n >= 2:
+        b = int(n - 1).bit_length()
+        packed, ok = _k_pack(key, b)
         if ok:
-            return order
-    return sel[np.argsort(key)]
+            order, ok, key_sorted = _k_unpack_keys(np.sort(packed), sel, key, b)
+            if ok:
+                return order, key_sorted
+    o = np.argsort(key)
+    return sel[o], key[o]
 
 
 @njit
@@ -263,6 +400,23 @@ def _k_unpack(srt, sel, b):
         if i > 0 and (srt[i] >> np.uint64(b)) == (srt[i - 1] >> np.uint64(b)):
             ok = False
     return order, ok
+
+
+@njit
+def _k_unpack_keys(srt, sel, key, b):
+    """`_k_unpack`, also returning the keys in that order."""
+    n = srt.shape[0]
+    low = (np.uint64(1) << np.uint64(b)) - np.uint64(1)
+    order = np.empty(n, np.intp)
+    key_sorted = np.empty(n)
+    ok = True
+    for i in range(n):
+        pos = np.intp(srt[i] & low)
+        order[i] = sel[pos]
+        key_sorted[i] = key[pos]
+        if i > 0 and (srt[i] >> np.uint64(b)) == (srt[i - 1] >> np.uint64(b)):
+            ok = False
+    return order, ok, key_sorted
 
 
 @njit
@@ -307,14 +461,16 @@ def _curve_r(s, L, ka, ca, kb, cb):
 
 
 @njit
-def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_gap, gap_max, half_gap, anchor, max_turn, lateral):
+def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, jitems, sx0, sy0, sgw, sgh, sstart, smid, sitems,
+            gcell, cell, sigma, min_gap, gap_max, half_gap, anchor, max_turn, lateral):
     """Steps 1–3 of the module doc over the ordered labelled samples `order`: the gaps between consecutive
     samples of one line, the two sides' tangent fits and tests, and the crossing in the gap. Returns the
     number of gaps, per gap that passed the tangent tests (G, 8) [first sample id, u (2), L, ka, ca, kb,
     cb] (u the chord's direction from the first sample, L its length, r = k·s + c each side's tangent
     across the chord), accepted (G,) bool (a labelled junction of this line names the gap), c_q (G, 2):
     where the other family's straight run crosses the curve (NaN where none), to be checked on the light
-    sheet, and the counts of gaps rejected (5,): anchors missing, broken, crooked, turn, lateral."""
+    sheet, and the counts of gaps rejected (5,): anchors missing, broken, crooked, turn, lateral. The
+    labelled junctions' grid (jx0 … jitems) and the samples' (sx0 … sitems): `_k_grids` on cell gcell."""
     n = order.shape[0]
     cap = max(n - 1, 1)  # at most one gap per consecutive pair
     gaps = np.empty((cap, 8))
@@ -323,12 +479,6 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, jsel, qs, fs, cell, sigma, min_ga
     c_q = np.full((cap, 2), np.nan)
     G = 0
     n_gaps = 0
-    gcell = max(gap_max, 4.0 * sigma, 2.0 * cell)
-    jkeep = np.zeros(qj.shape[0], np.bool_)
-    for j in jsel:
-        jkeep[j] = True
-    jx0, jy0, jgw, jgh, jstart, jitems, _ = sample_grid(qj, jkeep, _NO_TRACE, gcell)
-    sx0, sy0, sgw, sgh, sstart, smid, sitems = _family_grid(qs, fs, gcell)
     hits = np.empty(sitems.shape[0], np.intp)  # the other family's samples in the disc, in search order
     for p in range(n - 1):
         a = order[p]

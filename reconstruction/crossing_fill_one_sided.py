@@ -41,12 +41,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from reconstruction._jit import njit
-from reconstruction._label_kernels import sample_grid
 from reconstruction.continuation import crossing_gap_px
-from reconstruction.crossing_fill import CrossingPoints, _family_directions, _family_grid, _k_order, _other_run, _sorted_by_key
+from reconstruction.crossing_fill import (CrossingPoints, FillShared, _family_directions, _k_grids, _k_order, _other_run,
+                                          _sorted_by_key, grid_cell_px, order_with_appended)
 from reconstruction.rigmodel import UNLABELLED, RigModel
-
-_NO_TRACE = np.zeros(0, np.intp)
 
 
 @dataclass(frozen=True)
@@ -108,6 +106,7 @@ def fill_one_sided(
     cell_px: float,
     depth_range_mm: tuple[float, float],
     options: OneSidedFillOptions = OneSidedFillOptions(),
+    shared: FillShared | None = None,
 ) -> CrossingPoints:
     """Points from labelled lines' ends up to the crossing that ends them (module doc).
 
@@ -116,7 +115,12 @@ def fill_one_sided(
     (S,): every extracted sample and its label (NaN: none) (the other family's run at the crossing).
     q_junction (M, 2), junction_labels (M, 2) (UNLABELLED where none). sigma_px: the extraction's smoothing;
     cell_px: its sampling step. Camera px throughout. Returns the added samples (`CrossingPoints`, junction:
-    that of the end sample); stats: ends looked at, filled, rejected by reason, samples added."""
+    that of the end sample); stats: ends looked at, filled, rejected by reason, samples added.
+    shared: `fill_crossings`' work on this frame (`CrossingPoints.shared`; `with_one_sided` passes it when
+    the inputs are the same objects): then q[:shared.n], family, index and q_samples, family_samples,
+    q_junction, junction_labels must be those it was computed from. Its order is extended by the appended
+    samples (`order_with_appended`) and its grids reused when the cell is equal; the outputs are those
+    without it, bit for bit."""
     stats: dict = {"ends": 0, "ends_filled": 0, "samples_one_sided_filled": 0, "ends_rejected": {}}
     if not options.enabled:
         return _empty(stats)
@@ -124,20 +128,29 @@ def fill_one_sided(
     fam = np.ascontiguousarray(np.asarray(family).reshape(-1), np.intp)
     idx = np.ascontiguousarray(index, np.float64).reshape(-1)
     d1, d2 = _family_directions(model)
-    sel, key = _k_order(q, fam, idx, d1, d2)
-    order = _sorted_by_key(sel, key)
+    if shared is not None and shared.n == len(q):
+        order = shared.order  # nothing appended: the same arrays, the same order
+    elif shared is not None and shared.n < len(q):
+        order = order_with_appended(shared, q, fam, idx, d1, d2)
+    else:
+        sel, key = _k_order(q, fam, idx, d1, d2)
+        order = _sorted_by_key(sel, key)
     if len(order) < options.anchor + 1:
         return _empty(stats)
     lab = np.ascontiguousarray(junction_labels, np.int64).reshape(-1, 2)
     qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
-    jsel = np.flatnonzero(lab[:, 0] != UNLABELLED).astype(np.intp)
     gap_max = cell_px + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.trim_sigma,
                                         min_angle_deg=options.min_angle_deg)
+    gcell = grid_cell_px(gap_max, sigma_px, cell_px)
     qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
     fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
     ks = np.ascontiguousarray(index_samples, np.float64).reshape(-1)
+    if shared is not None and shared.grids is not None and shared.gcell == gcell:
+        grids = shared.grids
+    else:
+        grids = _k_grids(qj, lab, qs, fs, float(gcell))
     n_ends, ends, acc, c_q, m_other, why, why_run = _k_ends(
-        q, fam, idx, order, qj, lab, jsel, qs, fs, ks, float(cell_px), float(sigma_px),
+        q, fam, idx, order, qj, lab, qs, ks, *grids, float(gcell), float(cell_px), float(sigma_px),
         float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),
         int(options.anchor), float(math.sin(math.radians(options.min_angle_deg))), float(options.lateral_px * cell_px),
         bool(options.through), bool(options.beyond),
@@ -300,8 +313,8 @@ def _beyond(ox, oy, ux, uy, s_c, reach, width, f, k, qs, ks, x0, y0, gcell, gw, 
 
 
 @njit
-def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap, gap_max, half_gap, anchor, sin_min, lateral, through,
-            check_beyond, width, beyond_same, pull):
+def _k_ends(q, fam, idx, order, qj, lab, qs, ks, jx0, jy0, jgw, jgh, jstart, jitems, sx0, sy0, sgw, sgh, sstart, smid, sitems, gcell,
+            cell, sigma, min_gap, gap_max, half_gap, anchor, sin_min, lateral, through, check_beyond, width, beyond_same, pull):
     """Steps 1–3 of the module doc. Returns the number of ends looked at, per end that passed the fit (E, 6)
     [end sample, ox, oy, ux, uy, s_c] (o the fit's point at the end sample, u the outward unit direction,
     s_c the crossing's centre along it), accepted (E,) (a labelled junction of this line ends it), c_q (E,
@@ -309,7 +322,8 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
     label (UNLABELLED: none), and the counts of ends rejected (5,): anchors missing or not one run, anchors
     off their line, no crossing run ahead, crossing beyond reach or too acute, the run's labels disagree, the
     line continues beyond with another index; and (8,) the no-run ends by `_run_crossing`'s reason, first
-    disc (0–3) and re-centred disc (4–7)."""
+    disc (0–3) and re-centred disc (4–7). The labelled junctions' grid (jx0 … jitems) and the samples'
+    (sx0 … sitems): `crossing_fill._k_grids` on cell gcell."""
     n = order.shape[0]
     cap = 2 * n
     ends = np.empty((cap, 6))
@@ -320,12 +334,6 @@ def _k_ends(q, fam, idx, order, qj, lab, jsel, qs, fs, ks, cell, sigma, min_gap,
     why_run = np.zeros(8, np.int64)  # no run: the first disc's reason (0–3), the re-centred disc's (4–7)
     E = 0
     n_ends = 0
-    gcell = max(gap_max, 4.0 * sigma, 2.0 * cell)
-    jkeep = np.zeros(qj.shape[0], np.bool_)
-    for j in jsel:
-        jkeep[j] = True
-    jx0, jy0, jgw, jgh, jstart, jitems, _ = sample_grid(qj, jkeep, _NO_TRACE, gcell)
-    sx0, sy0, sgw, sgh, sstart, smid, sitems = _family_grid(qs, fs, gcell)
     hits = np.empty(sitems.shape[0], np.intp)
     # 1. the breaks between consecutive samples of the order (another line, or farther than min_gap): brk[p]
     # between p − 1 and p, both ends of the order included
@@ -532,8 +540,15 @@ def with_one_sided(
     """Decision 0086's points `cp` (None: none) followed by `fill_one_sided`'s, computed over the label
     stage's samples (q, family, index, junction: `SampleLabels.q`, the observation's family, `.index`,
     `.junction`) with `cp`'s appended; stats: cp's, with "samples_one_sided_filled" and "one_sided" (the
-    call's own counts). kwargs: `fill_one_sided`'s keywords except index_samples (the label stage's index)."""
+    call's own counts). kwargs: `fill_one_sided`'s keywords except index_samples (the label stage's index)
+    and shared: `cp.shared` (the order and grids `fill_crossings` built) is passed on when the arrays here
+    are the very objects it was computed from."""
     fam = np.asarray(family).reshape(-1)
+    sh = cp.shared if cp is not None else None
+    same = (q, family, index, kwargs.get("q_samples"), kwargs.get("family_samples"), kwargs.get("q_junction"),
+            kwargs.get("junction_labels"))
+    if sh is not None and not all(a is b for a, b in zip(sh.inputs, same)):
+        sh = None  # computed from other arrays: not reused
     if cp is not None and len(cp.index):
         q_all = np.concatenate([np.asarray(q, np.float64).reshape(-1, 2), cp.q])
         f_all = np.concatenate([fam.astype(np.intp), cp.family.astype(np.intp)])
@@ -541,7 +556,7 @@ def with_one_sided(
         j_all = np.concatenate([np.asarray(junction, np.int64), cp.junction])
     else:
         q_all, f_all, k_all, j_all = q, fam, index, junction
-    op = fill_one_sided(q_all, f_all, k_all, j_all, index_samples=index, **kwargs)
+    op = fill_one_sided(q_all, f_all, k_all, j_all, index_samples=index, shared=sh, **kwargs)
     stats = dict(cp.stats) if cp is not None else {"samples_crossing_filled": 0}
     stats["samples_one_sided_filled"] = op.stats["samples_one_sided_filled"]
     stats["one_sided"] = op.stats

@@ -149,3 +149,58 @@ def test_pipeline_adds_them_for_the_default_labeller_only(small_scene):
     # it extends decision 0086's fill: with that off, nothing is added either
     no_0086 = reconstruct(sc.image, sc.procam, sc.pattern, options=dataclasses.replace(base, crossing=CrossingFillOptions(enabled=False)))
     assert no_0086.stats["samples_one_sided_filled"] == 0 and no_0086.stats["samples_crossing_filled"] == 0
+
+
+def test_shared_work_gives_the_same_points_bit_for_bit(stages):
+    """The two-sided fill's grids and order, reused (`CrossingPoints.shared`), give exactly the points of
+    the one-sided fill computing them itself; arrays other than those the work came from are not reused."""
+    sc, model, obs, labels, sl, cp, kw = stages
+    assert cp.shared is not None and cp.shared.grids is not None and len(cp.index) > 0
+    shared = with_one_sided(cp, sl.q, obs.family, sl.index, sl.junction, **kw)
+    alone = with_one_sided(dataclasses.replace(cp, shared=None), sl.q, obs.family, sl.index, sl.junction, **kw)
+    assert len(shared.q) > len(cp.q)
+    for f in ("q", "family", "index", "junction"):
+        assert np.array_equal(getattr(shared, f), getattr(alone, f)), f
+    # a copy of the samples is not the array the work came from: the one-sided fill computes its own
+    assert with_one_sided(cp, sl.q.copy(), obs.family, sl.index, sl.junction, **kw).stats == shared.stats
+
+
+def test_order_with_appended_is_the_full_sort():
+    """`order_with_appended` = the full sort (`_k_order`, `_sorted_by_key`) of old + appended samples: lines
+    in random order, appended samples inside the old range (the merge), beyond it (the range grows: the
+    full sort), and on an old sample's key (a tie: the full sort)."""
+    from reconstruction import crossing_fill as CF
+
+    rng = np.random.default_rng(7)
+    d1 = np.array([1.0, 0.0])
+    d2 = np.array([0.0, 1.0])
+    for case in ("inside", "beyond", "tie"):
+        n0, n1 = 3000, 400
+        q = rng.uniform(0.0, 1000.0, (n0 + n1, 2))
+        fam = rng.integers(1, 3, n0 + n1).astype(np.intp)
+        idx = rng.integers(-20, 21, n0 + n1).astype(np.float64)
+        idx[rng.random(n0 + n1) < 0.1] = np.nan  # unlabelled samples take no part
+        q[n0:] = rng.uniform(10.0, 990.0, (n1, 2))  # inside the old samples' positions
+        if case == "beyond":
+            q[n0 + 5] = (1500.0, 1500.0)
+        if case == "tie":
+            q[n0 + 7], fam[n0 + 7], idx[n0 + 7] = q[11], fam[11], 3.0
+            idx[11] = 3.0
+        sel, key, key_range = CF._k_order_range(q[:n0], fam[:n0], idx[:n0], d1, d2)
+        order0, key0 = CF._sorted_with_keys(sel, key)
+        assert np.array_equal(order0, CF._sorted_by_key(sel, key))
+        assert np.array_equal(key0, np.sort(key))
+        shared = CF.FillShared((), n0, order0, key0, key_range, 1.0, None)
+        app, app_key, inside = CF._k_appended_keys(key_range, n0, q, fam, idx, d1, d2)
+        assert inside == (case != "beyond")
+        if inside:
+            merged_ok = CF._k_merge(order0, key0, *CF._sorted_with_keys(app, app_key))[1]
+            assert merged_ok == (case == "inside")
+        want = CF._sorted_by_key(*CF._k_order(q, fam, idx, d1, d2))
+        got = CF.order_with_appended(shared, q, fam, idx, d1, d2)
+        assert np.array_equal(got, want), case
+        # the order itself: by family, then line index, then position along the line
+        t = np.where(fam[got] == 1, q[got, 0], q[got, 1])
+        lex = np.lexsort((t, idx[got], fam[got]))
+        if case != "tie":
+            assert np.array_equal(lex, np.arange(len(got)))
