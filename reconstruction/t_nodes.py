@@ -18,7 +18,17 @@ label (from the component's offset) is the pattern's first or last index, so no 
 nothing hides it. Elsewhere the T node serves the topology only (it joins the component and carries its
 labels to the stems) and the half-hidden line it sits on stays unlabelled.
 
+Round 2 (decision 0098, "Round 2"; `label_piece_junctions(t_rule="after")`, the default): the T's do not join
+the graph given to the labeller. The components of the X nodes alone are labelled first (`x_use`, then
+`labelling.label_epipolar` as in decision 0092); a T then takes the labels that all its labelled X neighbours
+imply through their edges (`t_labels`), and stays unlabelled where they disagree. So a T never joins two
+components and never brings an offset of its own: at a silhouette, where the stems' surface and the through
+line's surface have index systems an arbitrary offset apart, the T can only carry the stems' own labels,
+which the stem pieces' X ends already have. Round 1 (`t_rule="graph"`, the T's in the labeller's graph) is
+kept as a measurement switch.
+
 Kernels:
+- `x_use`, `t_labels`: round 2 (above);
 - `t_node_stems`: per node, the family whose line stops there (its stem), or −1 where both go through (an X
   by decision 0092's test: two-sided, or a trace sample past the node within continue_px);
 - `through_kept`: which of step 7's selected pieces may be written.
