@@ -996,7 +996,9 @@ def label_piece_junctions(
     trim_px of a T stay unlabelled), "keep" (moved as at an X). t_rule: "after" (decision 0098, round 2: the
     components of the X nodes alone are labelled first, a T then takes the labels its labelled X neighbours
     agree on and joins nothing: `t_nodes.x_use`, `t_nodes.t_labels`), "graph" (round 1: the T's join the
-    graph given to `label_epipolar`; a T at a silhouette can join two surfaces; a measurement switch).
+    graph given to `label_epipolar`; a T at a silhouette can join two surfaces; a measurement switch), "rim"
+    ("after", with the T's whose through piece is already labelled with the pattern's first or last index
+    joining the graph as X's: `t_nodes.rim_ts`; a measurement switch).
 
     q (P, 2) camera px, fam (P,) 1/2 of all samples; the traces as `labelling.label_samples` builds them: sid
     (n,) sample ids by piece and position, piece (n,) non-decreasing piece ids, ts (n,) position along the piece
@@ -1043,7 +1045,7 @@ def label_piece_junctions(
     xy, node_end, n_assoc, n_not = _k_nodes(E, U, fe, h, c, float(merge_px), float(reach_px), float(lateral_px), float(continue_px),
                                             bool(x_both and not t_nodes), q, fam, *grid)
     if t_nodes:  # decision 0098: which family stops at each node
-        from reconstruction.t_nodes import t_labels, t_node_stems, through_end_samples, through_kept, through_refit, x_use
+        from reconstruction.t_nodes import rim_ts, t_labels, t_node_stems, through_end_samples, through_kept, through_refit, x_use
 
         stem = t_node_stems(xy, node_end, E, U, fe, float(lateral_px), float(continue_px), q, fam, *grid)
     n_nodes = len(xy)
@@ -1069,9 +1071,14 @@ def label_piece_junctions(
         if label_options is None and len(_DEFAULT_LO) < 64:
             _DEFAULT_LO[d_rng] = lo
     edges = np.ascontiguousarray(edges, np.int64)
-    t_after = t_nodes and t_rule == "after"
+    t_after = t_nodes and t_rule in ("after", "rim")
     if t_after:  # decision 0098, round 2: the X nodes' components first, without the T's
-        sub, renum, ek = x_use(n_nodes, edges, np.ascontiguousarray(eseg, np.int64), cand, labelled, stem, int(lo.min_component))
+        stem_g = stem
+        if t_rule == "rim":  # the T's whose through piece is already labelled with the rim index join as X's
+            rim = rim_ts(stem, node_end, nc, cand, labelled, val, first, fam, sid, int(model.index_min), int(model.index_max))
+            stem_g = np.where(rim, -1, stem)
+            stats["t_rim"] = int(rim.sum())
+        sub, renum, ek = x_use(n_nodes, edges, np.ascontiguousarray(eseg, np.int64), cand, labelled, stem_g, int(lo.min_component))
     else:
         sub, renum, ek = _k_use(n_nodes, edges, np.ascontiguousarray(eseg, np.int64), cand, labelled, int(lo.min_component))
     stats["nodes_used"] = int(len(sub))
@@ -1085,7 +1092,7 @@ def label_piece_junctions(
     comp[sub] = lab_sub.component
     stats["left_out"] = {k: v for k, v in lab_sub.stats["junctions_left_out"].items() if v}
     if t_after:  # the T's take the labels their labelled X neighbours agree on
-        n_t, n_t_bad = t_labels(L, comp, stem, edges, np.ascontiguousarray(delta, np.int64), UNLABELLED)
+        n_t, n_t_bad = t_labels(L, comp, stem_g, edges, np.ascontiguousarray(delta, np.int64), UNLABELLED)
         stats["t_labelled"], stats["t_disagree"] = int(n_t), int(n_t_bad)
     if not (L[:, 0] != UNLABELLED).any():
         return stats

@@ -341,3 +341,24 @@ def t_labels(L, comp, stem, edges, delta, unlabelled):
         else:
             n_bad += 1
     return n_ok, n_bad
+
+
+@njit
+def rim_ts(stem, node_end, nc, cand, labelled, val, first, fam, sid, index_min, index_max):
+    """Round 2, option "rim": the T's known to be at the pattern's rim before this step's labelling: a piece of
+    the through family ending at the T is already labelled (found junctions, earlier steps: labelled, val)
+    with the pattern's first or last index (index_min, index_max). node_end (R,) each end row's node (row r
+    is an end of the piece cand[r % nc]). Returns a bool per node."""
+    K = stem.shape[0]
+    out = np.zeros(K, np.bool_)
+    for r in range(node_end.shape[0]):
+        nd = node_end[r]
+        if nd < 0 or stem[nd] < 0:
+            continue
+        p = cand[r % nc]
+        if not labelled[p]:
+            continue
+        f = fam[sid[first[p]]] - 1
+        if f != stem[nd] and (val[p] == index_min or val[p] == index_max):
+            out[nd] = True
+    return out

@@ -255,3 +255,21 @@ def test_t_labels_only_where_the_x_neighbours_agree():
     delta3 = np.vstack([delta, [[0, 0]]])  # 2 is (4, 7), 3 is (3, 8): not equal
     Lc, cc = L.copy(), comp.copy()
     assert t_labels(Lc, cc, stem, edges3, delta3, U) == (0, 2)
+
+
+def test_rim_ts_are_the_ts_whose_through_piece_carries_the_rim_index():
+    from reconstruction.t_nodes import rim_ts
+
+    # nodes 0, 1 T's with stem family 2 (index 1), node 2 an X; pieces 0..2 (family 1: pieces 0, 1; family 2:
+    # piece 2), each piece one sample; end rows r → piece cand[r % 3]: rows 0-2 first ends, rows 3-5 last ends
+    stem = np.array([1, 1, -1])
+    cand = np.array([0, 1, 2])
+    first = np.array([0, 1, 2])
+    sid = np.array([0, 1, 2])
+    fam = np.array([1, 1, 2])
+    labelled = np.array([True, True, True])
+    val = np.array([5, 3, 5])  # piece 0 on the last line (5), piece 1 on line 3, piece 2 (the stem) on 5
+    node_end = np.array([0, 1, 0, -1, -1, 2])  # piece 0 ends at T 0, piece 1 at T 1, the stem piece 2 at T 0
+    assert rim_ts(stem, node_end, 3, cand, labelled, val, first, fam, sid, -5, 5).tolist() == [True, False, False]
+    # unlabelled through piece: not known as the rim
+    assert rim_ts(stem, node_end, 3, cand, np.array([False, True, True]), val, first, fam, sid, -5, 5).tolist() == [False, False, False]
