@@ -613,7 +613,7 @@ class TraceOptions:
     surface_labels: bool = True
     surface_rounds: int = 3
     surface_radius: float = 1.0
-    t_nodes: bool = False
+    t_nodes: bool = True
 
 
 @dataclass(frozen=True, eq=False)

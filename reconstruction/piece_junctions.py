@@ -986,13 +986,19 @@ def label_piece_junctions(
     debug: dict | None = None,
     t_nodes: bool = False,
     t_ends: str = "refit",
+    t_rule: str = "after",
 ) -> dict:
     """Label unlabelled pieces from junctions built at the crossings of pieces (module doc).
 
     t_nodes: nodes with one family through (T's) join the graph too; the through line's pieces at a T are
     written only at the pattern's rim, their line fitted without the T node ("refit"; `reconstruction.t_nodes`,
     decision 0098; the compiled path only). Measurement switch t_ends: "drop" (the through line's samples within
-    trim_px of a T stay unlabelled), "keep" (moved as at an X).
+    trim_px of a T stay unlabelled), "keep" (moved as at an X). t_rule: "after" (decision 0098, round 2: the
+    components of the X nodes alone are labelled first, a T then takes the labels its labelled X neighbours
+    agree on and joins nothing: `t_nodes.x_use`, `t_nodes.t_labels`), "graph" (round 1: the T's join the
+    graph given to `label_epipolar`; a T at a silhouette can join two surfaces; a measurement switch), "rim"
+    ("after", with the T's whose through piece is already labelled with the pattern's first or last index
+    joining the graph as X's: `t_nodes.rim_ts`; a measurement switch).
 
     q (P, 2) camera px, fam (P,) 1/2 of all samples; the traces as `labelling.label_samples` builds them: sid
     (n,) sample ids by piece and position, piece (n,) non-decreasing piece ids, ts (n,) position along the piece
@@ -1039,7 +1045,7 @@ def label_piece_junctions(
     xy, node_end, n_assoc, n_not = _k_nodes(E, U, fe, h, c, float(merge_px), float(reach_px), float(lateral_px), float(continue_px),
                                             bool(x_both and not t_nodes), q, fam, *grid)
     if t_nodes:  # decision 0098: which family stops at each node
-        from reconstruction.t_nodes import t_node_stems, through_end_samples, through_kept, through_refit
+        from reconstruction.t_nodes import rim_ts, t_labels, t_node_stems, through_end_samples, through_kept, through_refit, x_use
 
         stem = t_node_stems(xy, node_end, E, U, fe, float(lateral_px), float(continue_px), q, fam, *grid)
     n_nodes = len(xy)
@@ -1065,7 +1071,16 @@ def label_piece_junctions(
         if label_options is None and len(_DEFAULT_LO) < 64:
             _DEFAULT_LO[d_rng] = lo
     edges = np.ascontiguousarray(edges, np.int64)
-    sub, renum, ek = _k_use(n_nodes, edges, np.ascontiguousarray(eseg, np.int64), cand, labelled, int(lo.min_component))
+    t_after = t_nodes and t_rule in ("after", "rim")
+    if t_after:  # decision 0098, round 2: the X nodes' components first, without the T's
+        stem_g = stem
+        if t_rule == "rim":  # the T's whose through piece is already labelled with the rim index join as X's
+            rim = rim_ts(stem, node_end, nc, cand, labelled, val, first, fam, sid, int(model.index_min), int(model.index_max))
+            stem_g = np.where(rim, -1, stem)
+            stats["t_rim"] = int(rim.sum())
+        sub, renum, ek = x_use(n_nodes, edges, np.ascontiguousarray(eseg, np.int64), cand, labelled, stem_g, int(lo.min_component))
+    else:
+        sub, renum, ek = _k_use(n_nodes, edges, np.ascontiguousarray(eseg, np.int64), cand, labelled, int(lo.min_component))
     stats["nodes_used"] = int(len(sub))
     if len(sub) == 0:
         return stats
@@ -1076,6 +1091,9 @@ def label_piece_junctions(
     comp = np.full(n_nodes, -1, np.int64)
     comp[sub] = lab_sub.component
     stats["left_out"] = {k: v for k, v in lab_sub.stats["junctions_left_out"].items() if v}
+    if t_after:  # the T's take the labels their labelled X neighbours agree on
+        n_t, n_t_bad = t_labels(L, comp, stem_g, edges, np.ascontiguousarray(delta, np.int64), UNLABELLED)
+        stats["t_labelled"], stats["t_disagree"] = int(n_t), int(n_t_bad)
     if not (L[:, 0] != UNLABELLED).any():
         return stats
     # 6. anchors: labelled pieces ending at a node, labelled found junctions nearby

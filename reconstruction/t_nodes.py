@@ -18,7 +18,17 @@ label (from the component's offset) is the pattern's first or last index, so no 
 nothing hides it. Elsewhere the T node serves the topology only (it joins the component and carries its
 labels to the stems) and the half-hidden line it sits on stays unlabelled.
 
+Round 2 (decision 0098, "Round 2"; `label_piece_junctions(t_rule="after")`, the default): the T's do not join
+the graph given to the labeller. The components of the X nodes alone are labelled first (`x_use`, then
+`labelling.label_epipolar` as in decision 0092); a T then takes the labels that all its labelled X neighbours
+imply through their edges (`t_labels`), and stays unlabelled where they disagree. So a T never joins two
+components and never brings an offset of its own: at a silhouette, where the stems' surface and the through
+line's surface have index systems an arbitrary offset apart, the T can only carry the stems' own labels,
+which the stem pieces' X ends already have. Round 1 (`t_rule="graph"`, the T's in the labeller's graph) is
+kept as a measurement switch.
+
 Kernels:
+- `x_use`, `t_labels`: round 2 (above);
 - `t_node_stems`: per node, the family whose line stops there (its stem), or −1 where both go through (an X
   by decision 0092's test: two-sided, or a trace sample past the node within continue_px);
 - `through_kept`: which of step 7's selected pieces may be written.
@@ -31,6 +41,7 @@ import math
 import numpy as np
 
 from reconstruction._jit import njit
+from reconstruction._label_kernels import _union_find_root
 from reconstruction.piece_junctions import _k_continues, _k_node_ends
 
 
@@ -216,4 +227,138 @@ def through_end_samples(sel, ed, ed_a, ed_b, fam_s, cand, first, last, ts, sid, 
                 if (ta and ts[j] - ts[first[p]] < trim_px) or (tb and ts[last[p]] - ts[j] < trim_px):
                     out[m] = sid[j]
                     m += 1
+    return out
+
+
+@njit
+def x_use(n_nodes, edges, eseg, cand, labelled, stem, min_component):
+    """Round 2 (T's after the X's): step 5's choice on the graph of the X nodes only (stem −1; the edges with
+    both nodes X). A component of that graph is labelled when it has at least min_component nodes and an
+    unlabelled piece's edge at one of its nodes (to an X or to a T: the stems the T's then carry). Returns
+    as `piece_junctions._k_use`: the nodes used (sub, ascending), their new numbers (renum, −1: not used)
+    and the rows of edges between two used nodes (ek)."""
+    parent = np.arange(n_nodes)
+    for t in range(edges.shape[0]):
+        a = edges[t, 0]
+        b = edges[t, 1]
+        if stem[a] < 0 and stem[b] < 0:
+            ra = _union_find_root(parent, a)
+            rb = _union_find_root(parent, b)
+            if ra != rb:
+                if ra < rb:
+                    parent[rb] = ra
+                else:
+                    parent[ra] = rb
+    root = np.empty(n_nodes, np.int64)
+    size = np.zeros(n_nodes, np.int64)
+    for k in range(n_nodes):
+        root[k] = _union_find_root(parent, k)
+        if stem[k] < 0:
+            size[root[k]] += 1
+    want = np.zeros(n_nodes, np.bool_)
+    for t in range(edges.shape[0]):
+        if not labelled[cand[eseg[t]]]:
+            for m in range(2):
+                nd = edges[t, m]
+                if stem[nd] < 0:
+                    want[root[nd]] = True
+    renum = np.full(n_nodes, -1, np.int64)
+    m = 0
+    for k in range(n_nodes):
+        if stem[k] < 0 and want[root[k]] and size[root[k]] >= min_component:
+            renum[k] = m
+            m += 1
+    sub = np.empty(m, np.int64)
+    for k in range(n_nodes):
+        if renum[k] >= 0:
+            sub[renum[k]] = k
+    ne_ = 0
+    for t in range(edges.shape[0]):
+        if renum[edges[t, 0]] >= 0 and renum[edges[t, 1]] >= 0:
+            ne_ += 1
+    ek = np.empty(ne_, np.int64)
+    m = 0
+    for t in range(edges.shape[0]):
+        if renum[edges[t, 0]] >= 0 and renum[edges[t, 1]] >= 0:
+            ek[m] = t
+            m += 1
+    return sub, renum, ek
+
+
+@njit
+def t_labels(L, comp, stem, edges, delta, unlabelled):
+    """Round 2: the T nodes' labels from the labelled X nodes next to them, written in place into L (K, 2)
+    and comp (K,). A T takes L[x] ± delta of every edge to a labelled X node x (edges (E, 2), L[b] = L[a] +
+    delta[t]); it is labelled only where all of them agree (never a new offset: a T whose neighbours come
+    from two components with different index systems stays unlabelled). Then every edge between two
+    labelled T's must agree with its delta, else both stay unlabelled. Each labelled T gets a component of
+    its own (an anchor conflict at a T drops the T, not the component it was labelled from). Returns the
+    number of T's labelled and the number left out by a disagreement."""
+    K = L.shape[0]
+    n_imp = np.zeros(K, np.int64)
+    bad = np.zeros(K, np.bool_)
+    Li = np.zeros((K, 2), np.int64)
+    for t in range(edges.shape[0]):
+        for m in range(2):
+            x = edges[t, m]
+            y = edges[t, 1 - m]
+            if stem[x] >= 0 or stem[y] < 0 or L[x, 0] == unlabelled:
+                continue
+            sgn = 1 if m == 0 else -1
+            i = L[x, 0] + sgn * delta[t, 0]
+            j = L[x, 1] + sgn * delta[t, 1]
+            if n_imp[y] == 0:
+                Li[y, 0] = i
+                Li[y, 1] = j
+            elif Li[y, 0] != i or Li[y, 1] != j:
+                bad[y] = True
+            n_imp[y] += 1
+    ok = np.zeros(K, np.bool_)
+    for k in range(K):
+        ok[k] = stem[k] >= 0 and n_imp[k] > 0 and not bad[k]
+    drop = np.zeros(K, np.bool_)
+    for t in range(edges.shape[0]):
+        a = edges[t, 0]
+        b = edges[t, 1]
+        if ok[a] and ok[b]:
+            if Li[b, 0] - Li[a, 0] != delta[t, 0] or Li[b, 1] - Li[a, 1] != delta[t, 1]:
+                drop[a] = True
+                drop[b] = True
+    c_next = 0
+    for k in range(K):
+        c_next = max(c_next, comp[k] + 1)
+    n_ok = 0
+    n_bad = 0
+    for k in range(K):
+        if stem[k] < 0 or n_imp[k] == 0:
+            continue
+        if ok[k] and not drop[k]:
+            L[k, 0] = Li[k, 0]
+            L[k, 1] = Li[k, 1]
+            comp[k] = c_next
+            c_next += 1
+            n_ok += 1
+        else:
+            n_bad += 1
+    return n_ok, n_bad
+
+
+@njit
+def rim_ts(stem, node_end, nc, cand, labelled, val, first, fam, sid, index_min, index_max):
+    """Round 2, option "rim": the T's known to be at the pattern's rim before this step's labelling: a piece of
+    the through family ending at the T is already labelled (found junctions, earlier steps: labelled, val)
+    with the pattern's first or last index (index_min, index_max). node_end (R,) each end row's node (row r
+    is an end of the piece cand[r % nc]). Returns a bool per node."""
+    K = stem.shape[0]
+    out = np.zeros(K, np.bool_)
+    for r in range(node_end.shape[0]):
+        nd = node_end[r]
+        if nd < 0 or stem[nd] < 0:
+            continue
+        p = cand[r % nc]
+        if not labelled[p]:
+            continue
+        f = fam[sid[first[p]]] - 1
+        if f != stem[nd] and (val[p] == index_min or val[p] == index_max):
+            out[nd] = True
     return out
