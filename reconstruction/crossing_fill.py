@@ -605,24 +605,8 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
         rad = 0.5 * L + sigma
         cnt, cxm, cym, cxx, cxy, cyy = _other_run(mx, my, rad, f, qs, sx0, sy0, gcell, sgw, sgh, sstart, smid, sitems, hits)
         if cnt >= 4:
-            tr = 0.5 * (cxx + cyy)
-            det = math.sqrt(max(0.25 * (cxx - cyy) ** 2 + cxy * cxy, 0.0))
-            lam_min = tr - det
-            lam_max = tr + det
+            lam_min, nx, ny = _run_axis(cxx, cxy, cyy)
             if lam_min <= lateral * lateral:
-                # major axis e; normal nx, ny
-                if abs(cxy) > 1e-12:
-                    ex = lam_max - cyy
-                    ey = cxy
-                elif cxx >= cyy:
-                    ex = 1.0
-                    ey = 0.0
-                else:
-                    ex = 0.0
-                    ey = 1.0
-                en = math.sqrt(ex * ex + ey * ey)
-                nx = -ey / en
-                ny = ex / en
                 # Newton on s: (curve(s) − c)·n = 0
                 s = sm
                 good = True
@@ -708,6 +692,25 @@ def _family_grid(qs, fs, cell):
                 items[fill2[c]] = s
                 fill2[c] += 1
     return x0, y0, gw, gh, start, mid, items
+
+
+@njit
+def _run_axis(cxx, cxy, cyy):
+    """A run's covariance (xx, xy, yy) → (its smaller eigenvalue, the unit normal (nx, ny) of its major axis)."""
+    tr = 0.5 * (cxx + cyy)
+    det = math.sqrt(max(0.25 * (cxx - cyy) ** 2 + cxy * cxy, 0.0))
+    lam_max = tr + det
+    if abs(cxy) > 1e-12:
+        ex = lam_max - cyy
+        ey = cxy
+    elif cxx >= cyy:
+        ex = 1.0
+        ey = 0.0
+    else:
+        ex = 0.0
+        ey = 1.0
+    en = math.sqrt(ex * ex + ey * ey)
+    return tr - det, -ey / en, ex / en
 
 
 @njit

@@ -43,7 +43,7 @@ import numpy as np
 from reconstruction._jit import njit
 from reconstruction.continuation import crossing_gap_px
 from reconstruction.crossing_fill import (CrossingPoints, FillShared, _family_directions, _k_grids, _k_order, _other_run,
-                                          _sorted_by_key, grid_cell_px, order_with_appended)
+                                          _run_axis, _sorted_by_key, grid_cell_px, order_with_appended)
 from reconstruction.rigmodel import UNLABELLED, RigModel
 
 
@@ -232,24 +232,9 @@ def _run_crossing(ox, oy, ux, uy, mx, my, rad, f, qs, ks, x0, y0, gcell, gw, gh,
     cnt, cxm, cym, cxx, cxy, cyy = _other_run(mx, my, rad, f, qs, x0, y0, gcell, gw, gh, start, mid, items, hits)
     if cnt < 4:
         return np.nan, 0.0, UNLABELLED_K
-    tr = 0.5 * (cxx + cyy)
-    det = math.sqrt(max(0.25 * (cxx - cyy) ** 2 + cxy * cxy, 0.0))
-    lam_min = tr - det
-    lam_max = tr + det
+    lam_min, nx, ny = _run_axis(cxx, cxy, cyy)
     if lam_min > lateral * lateral:
         return np.nan, 1.0, UNLABELLED_K
-    if abs(cxy) > 1e-12:
-        ex = lam_max - cyy
-        ey = cxy
-    elif cxx >= cyy:
-        ex = 1.0
-        ey = 0.0
-    else:
-        ex = 0.0
-        ey = 1.0
-    en = math.sqrt(ex * ex + ey * ey)
-    nx = -ey / en
-    ny = ex / en
     den = ux * nx + uy * ny  # sin θ up to sign
     if abs(den) < 1e-6:
         return np.nan, 2.0, UNLABELLED_K
