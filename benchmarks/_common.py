@@ -2,7 +2,7 @@
 and the markdown they write. Private (leading underscore): benchmarks/run_all.py does not run it.
 
 - Truth sampling and scores: `sample_bilinear`, `relative_errors`, `line_centre_pixels` (the coverage target),
-  `coverage_lines`, `covered_share`,
+  `across_line_scale`, `coverage_lines`, `covered_share`,
   `evaluate_grid` / `GridScore` / `pooled` (the definitions that paper.py, sweep.py and modes.py report).
 - Scenes: `converged_1280` (the 1280x1024 rig of bench_extraction and bench_reconstruction), `bench_scenes`
   (simulator presets and `converged-1280` variants as `BenchScene`s), `render_scene` (image plus truth, seeded),
@@ -95,18 +95,38 @@ def projector_px_per_camera_px(q_proj: np.ndarray) -> np.ndarray:
     return out
 
 
+def across_line_scale(s: np.ndarray) -> np.ndarray:
+    """(H, W): |grad s| in units of s per camera px, for a field s (H, W) such as a line family's across-line
+    projector coordinate: how many projector px one camera px moves across that family's lines.
+
+    Per axis the one-sided difference of smaller magnitude (sign kept), as in `projector_px_per_camera_px`: at a
+    depth edge the pixel's own surface is on one side of it (decision 0075). NaN where neither side is on a
+    surface."""
+    g = []
+    for axis in (0, 1):
+        d = np.diff(s, axis=axis)
+        pad_f = [(0, 1), (0, 0)] if axis == 0 else [(0, 0), (0, 1)]
+        pad_b = [(1, 0), (0, 0)] if axis == 0 else [(0, 0), (1, 0)]
+        fw = np.pad(d, pad_f, constant_values=np.nan)
+        bw = np.pad(d, pad_b, constant_values=np.nan)
+        g.append(np.where(np.isnan(fw) | (np.abs(bw) < np.abs(fw)), bw, fw))
+    return np.hypot(g[0], g[1])
+
+
 def line_centre_pixels(truth, pattern: GridPattern) -> np.ndarray:
     """(H, W) bool: the visible, lit camera pixels on the centre of a drawn line of the pattern (the coverage
     target).
 
-    A pixel counts when the projector pixel it sees (truth.q_proj) lies within half a camera pixel (in projector
-    px, `projector_px_per_camera_px`) of a line's centre, inside the part of the line the pattern draws (between
-    its first and last crossing, see GridPattern.render), and the projector lights it (truth.lit). Uniform and
-    De Bruijn spacings alike: distances are measured with the pattern's own offsets."""
+    A pixel counts when the projector pixel it sees (truth.q_proj) lies within half a camera pixel of a line's
+    centre, measured across that line (the projector distance over `across_line_scale` of the family's
+    across-line coordinate: a band one camera pixel wide whatever the local foreshortening, decision 0101),
+    inside the part of the line the pattern draws (between its first and last crossing, see
+    GridPattern.render), and the projector lights it (truth.lit). Uniform and De Bruijn spacings alike:
+    distances are measured with the pattern's own offsets."""
     q = truth.q_proj.astype(np.float64)
     x = q[..., 0] - pattern.centre_px[0]
     y = q[..., 1] - pattern.centre_px[1]
-    scale = projector_px_per_camera_px(q)
+    on_surface = np.isfinite(projector_px_per_camera_px(q))
     near = np.zeros(x.shape, bool)
     half = 0.5 * pattern.line_width_px
     s = {}
@@ -120,8 +140,8 @@ def line_centre_pixels(truth, pattern: GridPattern) -> np.ndarray:
             d = np.minimum(np.abs(s[fam] - offs[k - 1]), np.abs(s[fam] - offs[k]))
             offs_o = pattern.offsets_px(other) / np.hypot(1, n_o)
             inside = (s[other] >= offs_o[0] - half) & (s[other] <= offs_o[-1] + half)
-            near |= (d <= 0.5 * scale) & inside
-        return near & truth.lit & np.isfinite(scale)
+            near |= (d <= 0.5 * across_line_scale(s[fam])) & inside
+        return near & truth.lit & on_surface
 
 
 def coverage_lines(truth, pattern: GridPattern, q_cam: np.ndarray, *, radius_px: float = 1.5) -> float:

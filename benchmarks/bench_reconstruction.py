@@ -14,8 +14,8 @@ Metrics (per scene and labeller):
 - relative 3-D error of every point: |p − p_true| / |p_true| (p_true: the true surface point seen through
   the same sub-pixel camera position, bilinear), median, 99th percentile, share above 1 % (mislabelled);
 - coverage: share of the visible, lit line-centre pixels (true projector position within half a camera
-  pixel of a line's centre, on the drawn part of the line) that have a reconstructed point within 1.5
-  camera px;
+  pixel of a line's centre, measured across the line, on the drawn part of the line; decision 0101) that have
+  a reconstructed point within 1.5 camera px;
 - time per stage (ms, median of --repeat runs, one OpenCV thread), taken after the accuracy pass in rounds that
   run every scene and labeller once each (`time_round_robin`), so that the shared machine's slow spells fall
   on all rows alike.

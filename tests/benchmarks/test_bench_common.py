@@ -74,3 +74,42 @@ def test_fmt_and_write_markdown(common, tmp_path):
 def test_tree_state_names_the_commit(common):
     state = common.tree_state(["benchmarks/_common.py"])
     assert state == "unknown (no git)" or re.fullmatch(r"commit [0-9a-f]{4,}, (clean|with uncommitted changes to .+)", state)
+
+
+@pytest.mark.parametrize("stretch", [1.0, 0.25])
+def test_line_centre_pixels_are_one_camera_pixel_wide_across_each_line(common, stretch):
+    """The coverage target is the band within half a camera pixel of each line's centre, measured across the line
+    (decision 0101). On an affine projector map q = A·(u, v) + c, the camera distance of a pixel to a line of family
+    f is |s_f − offset| / |∇s_f| exactly. With the map foreshortened along one image axis (stretch 0.25: one
+    projector px spans 4 camera px there), a scale taken from the map's larger axis instead would widen the band
+    of the lines that run across the foreshortened axis to several camera px."""
+    from types import SimpleNamespace
+
+    from reconstruction.patterns import GridPattern
+
+    H = W = 240
+    pat = GridPattern(pitch_px=12.0, lines=61, line_width_px=2.0, centre_px=(100.0, 60.0))  # drawn over the whole image
+    A = np.array([[0.8, 0.0], [0.0, 0.8 * stretch]]) @ np.array([[np.cos(0.3), -np.sin(0.3)], [np.sin(0.3), np.cos(0.3)]])
+    vv, uu = np.mgrid[0:H, 0:W].astype(np.float64)
+    q = np.stack([A[0, 0] * uu + A[0, 1] * vv + 10.0, A[1, 0] * uu + A[1, 1] * vv + 5.0], axis=-1)
+    truth = SimpleNamespace(q_proj=q.astype(np.float32), lit=np.ones((H, W), bool))
+    target = common.line_centre_pixels(truth, pat)
+    # the analytic camera distance to the nearest drawn line of each family, and the total drawn length in the image
+    dist = np.full((H, W), np.inf)
+    x, y = q[..., 0] - pat.centre_px[0], q[..., 1] - pat.centre_px[1]
+    length = 0.0
+    for fam, n in ((1, pat.n1), (2, pat.n2)):
+        s = (y - n * x) / np.hypot(1, n)
+        grad = np.hypot(*(np.array([-n, 1.0]) / np.hypot(1, n) @ A))  # |∇s| in projector px per camera px
+        offs = pat.offsets_px(fam) / np.hypot(1, n)
+        d = np.abs(s[..., None] - offs).min(axis=-1) / grad
+        dist = np.minimum(dist, d)
+        # each line's drawn length in the image ~ the number of pixels within half a pixel of it, one per px
+        length += float((d <= 0.5).sum())
+    interior = np.zeros((H, W), bool)
+    interior[2:-2, 2:-2] = True
+    assert target[interior].any()
+    assert dist[target & interior].max() <= 0.5 + 1e-3  # never wider than one camera pixel across the line
+    # and not thinner: every pixel within 0.45 px of a line's centre is in the target
+    assert target[interior & (dist <= 0.45)].all()
+    assert abs(int(target.sum()) - length) <= 0.05 * length

@@ -164,12 +164,19 @@ def _coverage(truth, pattern: GridPattern, q_cam: np.ndarray) -> float:
     q = truth.q_proj.astype(np.float64)
     x = q[..., 0] - pattern.centre_px[0]
     y = q[..., 1] - pattern.centre_px[1]
-    # projector px per camera px from one-sided differences (the smaller per axis): a central difference
-    # across a depth edge would count silhouette pixels as line pixels (decision 0075)
-    d0, d1 = np.linalg.norm(np.diff(q, axis=0), axis=2), np.linalg.norm(np.diff(q, axis=1), axis=2)
-    nan_row, nan_col = np.full((1, q.shape[1]), np.nan), np.full((q.shape[0], 1), np.nan)
-    scale = np.fmax(np.fmin(np.vstack([d0, nan_row]), np.vstack([nan_row, d0])),
-                    np.fmin(np.hstack([d1, nan_col]), np.hstack([nan_col, d1])))
+    # one-sided differences (the smaller per axis): a central difference across a depth edge would count
+    # silhouette pixels as line pixels (decision 0075)
+    def one_sided(f):
+        g = []
+        for axis in (0, 1):
+            d = np.diff(f, axis=axis)
+            fw = np.pad(d, [(0, 1), (0, 0)] if axis == 0 else [(0, 0), (0, 1)], constant_values=np.nan)
+            bw = np.pad(d, [(1, 0), (0, 0)] if axis == 0 else [(0, 0), (1, 0)], constant_values=np.nan)
+            g.append(np.where(np.isnan(fw) | (np.abs(bw) < np.abs(fw)), bw, fw))
+        return g
+
+    gq = one_sided(q[..., 0]), one_sided(q[..., 1])
+    scale = np.fmax(np.hypot(gq[0][0], gq[1][0]), np.hypot(gq[0][1], gq[1][1]))  # finite where the pixel is on a surface
     lo, hi = pattern.indices[0], pattern.indices[-1]
     c = {1: (y - pattern.n1 * x) / pattern.pitch_px, 2: (y - pattern.n2 * x) / pattern.pitch_px}
     half = 0.5 * pattern.line_width_px / pattern.pitch_px
@@ -178,7 +185,9 @@ def _coverage(truth, pattern: GridPattern, q_cam: np.ndarray) -> float:
         k = np.clip(np.rint(c[f]), lo, hi)
         d = np.abs(c[f] - k) * pattern.pitch_px / np.hypot(1, n)
         o = c[3 - f]
-        target |= (d <= 0.5 * scale) & (o >= lo - half) & (o <= hi + half)
+        # half a camera pixel measured across the line: |∇| of the across-line coordinate (decision 0101)
+        across = np.hypot(*one_sided((y - n * x) / np.hypot(1, n)))
+        target |= (d <= 0.5 * across) & (o >= lo - half) & (o <= hi + half)
     with np.errstate(invalid="ignore"):
         target &= truth.lit & np.isfinite(scale)
     mask = np.full(target.shape, 255, np.uint8)
