@@ -74,6 +74,14 @@ class LabelOptions:
     max_split_rounds: int = 3
     min_component: int = 1
 
+    def __post_init__(self) -> None:
+        # the ambiguity test divides by noise_floor_px² (compiled: a zero would give inf/NaN silently)
+        for name in ("noise_floor_px", "residual_cap_px", "candidate_band_px", "max_residual_px"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"LabelOptions.{name} = {getattr(self, name)}: must be > 0")
+        if not self.depth_max_mm > self.depth_min_mm:
+            raise ValueError(f"LabelOptions: depth_max_mm ({self.depth_max_mm}) must be greater than depth_min_mm ({self.depth_min_mm})")
+
 
 #: reasons a junction is left out by the default labeller (keys of stats["junctions_left_out"])
 LEFT_OUT_REASONS = (

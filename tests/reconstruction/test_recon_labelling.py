@@ -339,3 +339,13 @@ def test_a_trace_is_cut_where_the_ridge_brightness_jumps():
     whole = label_samples(obs, np.array([[4, -7]]), sigma_px=1.0, seed_radius_px=8.0, image=img, line_width_px=3.0,
                           options=TraceOptions(max_profile_drop=0.0, max_ridge_step=0.0))
     assert np.all(whole.index == 4)
+
+
+@pytest.mark.parametrize("bad", [{"noise_floor_px": 0.0}, {"residual_cap_px": -1.0}, {"candidate_band_px": 0.0},
+                                 {"max_residual_px": float("nan")}, {"depth_min_mm": 900.0, "depth_max_mm": 500.0}])
+def test_label_options_reject_values_the_labeller_cannot_use(bad):
+    # noise_floor_px = 0 made the compiled ambiguity test divide by zero and label nothing, silently
+    from reconstruction.labelling import LabelOptions
+
+    with pytest.raises(ValueError, match="LabelOptions"):
+        LabelOptions(**bad)
