@@ -54,6 +54,7 @@ import cv2
 import numpy as np
 
 from reconstruction import _extract_kernels as _k
+from reconstruction.corner_junctions import corner_candidates, corner_kinds
 from reconstruction.junction_arms import retry_trimmed_arms
 from reconstruction.rigmodel import RigModel
 
@@ -105,6 +106,7 @@ class ExtractOptions:
     free_end_trim_sigma: float = 2.0
     arm_free_end_trim: bool = True
     arm_short_share: float = 0.5
+    corner_junctions: bool = False
     debug: bool = False
 
 
@@ -482,6 +484,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         arm_of = _k.arms(sidx, sg, sproj, smin, smax, seg_seed, qx32, qy32, seeds_x32, seeds_y32, np.float32(R), P)
     else:
         arm_of = np.full(P, -1, np.intp)
+    corner = None
     if not ns:
         valid = np.zeros(ns, bool)
         qj = np.full((ns, 2), np.nan)
@@ -508,6 +511,9 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
             float(np.sin(np.deg2rad(options.max_arm_turn_deg))), max(options.max_junction_offset_px / scale, 0.5 * r0 + 0.5),
             options.max_segment_rms_px / scale,
         )  # fmt: skip
+        if options.corner_junctions:  # T's: one family through, straight arms (decision 0102)
+            corner = corner_candidates(valid, cnt, n_neg, n_pos, rms, jump, par, offc, qj, options.max_segment_rms_px / scale)
+            valid |= corner
         reasons["too_few_samples"] += int(counts[0])
         reasons["not_through"] = int(counts[1])
         reasons["parallel"] = int(counts[2])
@@ -538,6 +544,8 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         segment_ends = new_id[seg_seed]
     M = len(q_junction)
     stats["junctions"] = M
+    if corner is not None:
+        stats["junction_corner"] = corner_kinds(corner & valid, n_neg.reshape(-1), n_pos.reshape(-1), new_id, M)
     # samples a kept junction holds are reported with it, not with their segment; near a rejected
     # crossing (T- and L-shapes: the pattern's rim, occlusions) the other line's light biases the ridge,
     # so samples there are left out of their segment
