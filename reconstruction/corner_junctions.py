@@ -82,3 +82,70 @@ def corner_kinds(corner, n_neg, n_pos, new_id, M):
             a = 2 * k
             kind[j] = 1 if (n_neg[a] >= 1 and n_pos[a] >= 1) else 2
     return kind
+
+
+@njit(error_model="numpy")
+def dark_beyond(corner, qj, dr, n_neg, n_pos, qx, qy, r_in, r_out, half_width, max_samples):
+    """Keep only the corners whose stem's missing side is dark: no more than `max_samples` line samples (either
+    family; qx, qy float32 working px) lie beyond the through line on the side where the stem would go on,
+    from r_in to r_out along the stem's fitted direction and within half_width across it. A shadow edge or
+    the pattern's rim leaves that side dark; an occluding edge leaves the surface in front there, lit with
+    its own lines (decision 0102). dr (2·ns, 2) the fits' directions; n_neg, n_pos (2·ns,) the inlier
+    counts before and after the candidate along them. Modifies `corner` in place; returns how many it drops."""
+    ns = len(corner)
+    P = len(qx)
+    if P == 0:
+        return 0
+    # a bucket grid of the samples, cells of r_out (counting sort)
+    lox = np.float64(qx[0])
+    loy = np.float64(qy[0])
+    hix = lox
+    hiy = loy
+    for i in range(P):
+        lox = min(lox, np.float64(qx[i]))
+        loy = min(loy, np.float64(qy[i]))
+        hix = max(hix, np.float64(qx[i]))
+        hiy = max(hiy, np.float64(qy[i]))
+    cs = max(r_out, 1.0)
+    gw = int((hix - lox) / cs) + 1
+    gh = int((hiy - loy) / cs) + 1
+    start = np.zeros(gw * gh + 1, np.int64)
+    cell = np.empty(P, np.int64)
+    for i in range(P):
+        c = int((np.float64(qy[i]) - loy) / cs) * gw + int((np.float64(qx[i]) - lox) / cs)
+        cell[i] = c
+        start[c + 1] += 1
+    for c in range(gw * gh):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(P, np.int64)
+    for i in range(P):
+        order[fill[cell[i]]] = i
+        fill[cell[i]] += 1
+    dropped = 0
+    for k in range(ns):
+        if not corner[k]:
+            continue
+        a = 2 * k
+        g = a if not (n_neg[a] >= 1 and n_pos[a] >= 1) else a + 1  # the stem's fit
+        sgn = -1.0 if n_pos[g] >= 1 else 1.0  # the stem's samples are on the + side: the missing side is −
+        ux = sgn * dr[g, 0]
+        uy = sgn * dr[g, 1]
+        cx = int((qj[k, 0] - lox) / cs)
+        cy = int((qj[k, 1] - loy) / cs)
+        count = 0
+        for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
+            for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
+                c = yy * gw + xx
+                for t in range(start[c], start[c + 1]):
+                    i = order[t]
+                    dx = np.float64(qx[i]) - qj[k, 0]
+                    dy = np.float64(qy[i]) - qj[k, 1]
+                    s = dx * ux + dy * uy
+                    w = abs(dx * uy - dy * ux)
+                    if s >= r_in and s <= r_out and w <= half_width:
+                        count += 1
+        if count > max_samples:
+            corner[k] = False
+            dropped += 1
+    return dropped

@@ -54,7 +54,7 @@ import cv2
 import numpy as np
 
 from reconstruction import _extract_kernels as _k
-from reconstruction.corner_junctions import corner_candidates, corner_kinds
+from reconstruction.corner_junctions import corner_candidates, corner_kinds, dark_beyond
 from reconstruction.junction_arms import retry_trimmed_arms
 from reconstruction.rigmodel import RigModel
 
@@ -107,6 +107,7 @@ class ExtractOptions:
     arm_free_end_trim: bool = True
     arm_short_share: float = 0.5
     corner_junctions: bool = False
+    corner_dark: bool = True
     debug: bool = False
 
 
@@ -513,6 +514,8 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         )  # fmt: skip
         if options.corner_junctions:  # T's: one family through, straight arms (decision 0102)
             corner = corner_candidates(valid, cnt, n_neg, n_pos, rms, jump, par, offc, qj, options.max_segment_rms_px / scale)
+            if options.corner_dark:
+                stats["corners_not_dark"] = dark_beyond(corner, qj, dr, n_neg, n_pos, qx32, qy32, r0 + s_w + 1.0, step, 0.5 * step, 2)
             valid |= corner
         reasons["too_few_samples"] += int(counts[0])
         reasons["not_through"] = int(counts[1])
