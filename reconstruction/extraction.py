@@ -54,7 +54,7 @@ import cv2
 import numpy as np
 
 from reconstruction import _extract_kernels as _k
-from reconstruction.corner_junctions import corner_candidates, corner_kinds, curved_crossings, dark_beyond
+from reconstruction.corner_junctions import corner_candidates, corner_kinds, dark_beyond
 from reconstruction.junction_arms import retry_trimmed_arms
 from reconstruction.rigmodel import RigModel
 
@@ -108,7 +108,6 @@ class ExtractOptions:
     arm_short_share: float = 0.5
     corner_junctions: bool = False
     corner_dark: bool = True
-    curved_crossings: bool = False
     debug: bool = False
 
 
@@ -518,16 +517,6 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
             if options.corner_dark:
                 stats["corners_not_dark"] = dark_beyond(corner, qj, dr, n_neg, n_pos, qx32, qy32, r0 + s_w + 1.0, step, 0.5 * step, 2)
             valid |= corner
-        if options.curved_crossings:  # X's with curved arms: parabola fits (decision 0102)
-            curved, qj_c, tang = curved_crossings(
-                valid, arm_of, fam, qx32, qy32, nx32, ny32, cen, dr, cnt, n_neg, n_pos, par, offc, seeds_x, seeds_y,
-                options.max_segment_rms_px / scale, options.max_segment_rms_px / scale,
-                float(np.sin(np.deg2rad(options.max_arm_turn_deg))), max(options.max_junction_offset_px / scale, 0.5 * r0 + 0.5))
-            if curved.any():
-                qj[curved] = qj_c[curved]
-                dr.reshape(ns, 2, 2)[curved] = tang[curved]
-                valid |= curved
-            stats["junctions_curved"] = int(curved.sum())
         reasons["too_few_samples"] += int(counts[0])
         reasons["not_through"] = int(counts[1])
         reasons["parallel"] = int(counts[2])
