@@ -1,27 +1,22 @@
-"""Corner junctions: T-shaped crossings kept as junctions of the graph, their biased samples left out (decision 0102).
+"""Corner junctions: T-shaped crossings kept as junctions of the graph (an option, off by default: decision 0102).
 
 Extraction keeps a crossing candidate only where both lines run through it (samples of each family on
 both sides, decision 0041). A T — one family through, the other ending at it — is left out because it
-may be a silhouette or a shadow edge. On the paper presets (junction step ~60 camera px, σ ≈ 5 px) that
-costs whole pieces: a piece between two crossings one of which is a T has one junction end at most,
-so it joins no component of the graph and stays unlabelled ("no seed").
+may be a silhouette or a shadow edge. On the paper presets (junction step ~60 camera px, σ ≈ 5 px) every
+missing junction costs whole line pieces, and most missed visible junctions there are L's and T's.
 
-Measured (decision 0102): at the T's that the arm tests reject and that are otherwise straight junctions
+`corner_candidates` picks the candidates the arm tests rejected only because one family does not run through
 (each family ≥ 3 arm samples, straight fits, no sideways jump, not parallel, the fitted intersection on the
-candidate), the label the epipolar labeller gives is right; what goes wrong when they are simply kept is the
-position of the samples next to them: the through line's ridge is pulled by the stem's light (or half hidden
-by the occluding edge) and the stem's end is pulled by the through line, within about one core radius plus
-one smoothing scale. So a corner junction
+candidate: its position is the intersection of the two fitted lines, well defined with a stem on one side);
+`dark_beyond` keeps those whose stem's missing side is dark (a shadow edge or the pattern's rim, not an
+occluding edge with the front surface lit beyond); `corner_kinds` says which family runs through.
+`ExtractOptions.corner_junctions` keeps them as junctions of the graph.
 
-1. joins the graph like any junction (its position: the intersection of the two families' fitted lines,
-   which is well defined with a stem on one side only), and so carries the component's labels to the
-   pieces that end at it, and
-2. gives up its samples within `r_bias` (the core plus one smoothing scale, the radius extraction already
-   uses around rejected candidates): they belong neither to it nor to a segment, exactly as around a
-   rejected candidate.
-
-L shapes (no family through) are not corners: measured on paper-orthogonal, keeping them mislabels whole
-pieces (148 points more than 1 % off).
+Measured in decision 0102: the corners' labels are almost all right, but the samples they seed are not
+(the through line at a silhouette continues as another surface's line; an occlusion T's stem inherits the
+near surface's index: one-sided evidence), so the option adds points more than 1 % off on five of the eight
+bench scenes and is off by default. L shapes (no family through) are never corners: on paper-orthogonal
+they mislabel whole pieces (148 points more than 1 % off).
 
 Everything here works in extraction's working pixels (half resolution on the wide-line path).
 """
