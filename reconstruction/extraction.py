@@ -90,6 +90,9 @@ class ExtractOptions:
         trimmed too; kept on the same terms (decision 0077, round 4b); 0: off.
     downsample_sigma_px: smoothing scales at or above this are computed on a half-resolution image
         (wide lines; the samples are still about two camera pixels apart).
+    corner_junctions: a candidate rejected only because one family ends at it (a T, straight arms) is kept as
+        a junction (`corner_junctions.py`; stats["junction_corner"] says which). Off: measured not to pay
+        (decision 0102). corner_dark: with it, only T's whose stem's missing side is dark (no lit lines there).
     """
 
     sigma_px: float | None = None
