@@ -54,6 +54,7 @@ import cv2
 import numpy as np
 
 from reconstruction import _extract_kernels as _k
+from reconstruction.corner_junctions import corner_candidates, corner_kinds, dark_beyond
 from reconstruction.junction_arms import retry_trimmed_arms
 from reconstruction.rigmodel import RigModel
 
@@ -89,6 +90,9 @@ class ExtractOptions:
         trimmed too; kept on the same terms (decision 0077, round 4b); 0: off.
     downsample_sigma_px: smoothing scales at or above this are computed on a half-resolution image
         (wide lines; the samples are still about two camera pixels apart).
+    corner_junctions: a candidate rejected only because one family ends at it (a T, straight arms) is kept as
+        a junction (`corner_junctions.py`; stats["junction_corner"] says which). Off: measured not to pay
+        (decision 0102). corner_dark: with it, only T's whose stem's missing side is dark (no lit lines there).
     """
 
     sigma_px: float | None = None
@@ -105,6 +109,8 @@ class ExtractOptions:
     free_end_trim_sigma: float = 2.0
     arm_free_end_trim: bool = True
     arm_short_share: float = 0.5
+    corner_junctions: bool = False
+    corner_dark: bool = True
     debug: bool = False
 
 
@@ -482,6 +488,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         arm_of = _k.arms(sidx, sg, sproj, smin, smax, seg_seed, qx32, qy32, seeds_x32, seeds_y32, np.float32(R), P)
     else:
         arm_of = np.full(P, -1, np.intp)
+    corner = None
     if not ns:
         valid = np.zeros(ns, bool)
         qj = np.full((ns, 2), np.nan)
@@ -508,6 +515,11 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
             float(np.sin(np.deg2rad(options.max_arm_turn_deg))), max(options.max_junction_offset_px / scale, 0.5 * r0 + 0.5),
             options.max_segment_rms_px / scale,
         )  # fmt: skip
+        if options.corner_junctions:  # T's: one family through, straight arms (decision 0102)
+            corner = corner_candidates(valid, cnt, n_neg, n_pos, rms, jump, par, offc, qj, options.max_segment_rms_px / scale)
+            if options.corner_dark:
+                stats["corners_not_dark"] = dark_beyond(corner, qj, dr, n_neg, n_pos, qx32, qy32, r0 + s_w + 1.0, step, 0.5 * step, 2)
+            valid |= corner
         reasons["too_few_samples"] += int(counts[0])
         reasons["not_through"] = int(counts[1])
         reasons["parallel"] = int(counts[2])
@@ -538,6 +550,8 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         segment_ends = new_id[seg_seed]
     M = len(q_junction)
     stats["junctions"] = M
+    if corner is not None:
+        stats["junction_corner"] = corner_kinds(corner & valid, n_neg.reshape(-1), n_pos.reshape(-1), new_id, M)
     # samples a kept junction holds are reported with it, not with their segment; near a rejected
     # crossing (T- and L-shapes: the pattern's rim, occlusions) the other line's light biases the ridge,
     # so samples there are left out of their segment
