@@ -38,7 +38,6 @@ import math
 
 import numpy as np
 
-from reconstruction._continuation_kernels import piece_ends
 from reconstruction._jit import njit
 from reconstruction.rigmodel import RigModel
 
@@ -59,174 +58,251 @@ def _cells(x, y, r, x0, y0, cell, gw, gh):
 
 
 @njit
-def _k_candidates(q, fam, sid, piece, val, e, u, end_pos, labelled, n_p, min_samples, reach, lateral, cross_r,
-                  across_r, x0, y0, cell, gw, gh, start, items, pos_of):
-    """Per unlabelled piece of at least min_samples samples: its two crossings (gap middles, step 2) and the
-    candidate lines from its labelled neighbour lines (step 1; val (n_p,): each piece's line, NaN: none). Returns the pieces (nc,), the crossings
-    c (nc, 2, 2), the candidates kc (nc, 4) int64 (padding: the first candidate repeated), the piece's family and
-    per piece (n_p,) why it was left out: 1 no facing piece at an end, 2 no sample of the other family in a gap,
-    3 no neighbour line, 4 no labelled neighbour line (0: a candidate, or not tried)."""
-    nc = 0
-    for p in range(n_p):
-        nc += (not labelled[p]) and (end_pos[n_p + p] - end_pos[p] + 1 >= min_samples)
-    cand = np.empty(nc, np.intp)
-    cr = np.empty((nc, 2, 2))
-    kc = np.empty((nc, 4), np.int64)
-    fp = np.empty(nc, np.int64)
-    why = np.zeros(n_p, np.int8)  # 1 no facing piece at an end, 2 no crossing in a gap, 3 no neighbour line, 4 none labelled
-    n_out = 0
-    for p in range(n_p):
-        a, b = end_pos[p], end_pos[n_p + p]
-        if labelled[p] or b - a + 1 < min_samples:
-            continue
-        f = fam[sid[a]]
-        ok = True
-        # 2. the crossing at each end: the gap's middle to the facing sample of the same family ahead
-        for side in range(2):
-            r = side * n_p + p
-            ex, ey, ux, uy = e[r, 0], e[r, 1], u[r, 0], u[r, 1]
-            best = reach + 1.0
-            bx = 0.0
-            by = 0.0
-            cx0, cx1, cy0, cy1 = _cells(ex + 0.5 * reach * ux, ey + 0.5 * reach * uy, 0.5 * reach + lateral + _BEND * reach, x0, y0, cell, gw, gh)
-            for cy in range(cy0, cy1 + 1):
-                for cx in range(cx0, cx1 + 1):
-                    c = cy * gw + cx
-                    for it in range(start[c], start[c + 1]):
-                        s = items[it]
-                        k = pos_of[s]
-                        if k < 0 or fam[s] != f or piece[k] == p:
-                            continue
-                        dx, dy = q[s, 0] - ex, q[s, 1] - ey
-                        al = dx * ux + dy * uy
-                        ac = abs(dx * uy - dy * ux)
-                        if al > 0.0 and al <= reach and ac <= lateral + _BEND * al and al < best:
-                            best = al
-                            bx, by = q[s, 0], q[s, 1]
-            if best > reach:
-                ok = False
-                why[p] = 1
-                break
-            mx, my = 0.5 * (ex + bx), 0.5 * (ey + by)
-            # a crossing: a sample of the other family near the gap's middle
-            hit = False
-            cx0, cx1, cy0, cy1 = _cells(mx, my, cross_r, x0, y0, cell, gw, gh)
-            for cy in range(cy0, cy1 + 1):
-                for cx in range(cx0, cx1 + 1):
-                    c = cy * gw + cx
-                    for it in range(start[c], start[c + 1]):
-                        s = items[it]
-                        if fam[s] != 3 - f:
-                            continue
-                        if (q[s, 0] - mx) ** 2 + (q[s, 1] - my) ** 2 <= cross_r * cross_r:
-                            hit = True
-                            break
-                    if hit:
-                        break
-                if hit:
-                    break
-            if not hit:
-                ok = False
-                why[p] = 2
-                break
-            cr[n_out, side, 0] = mx
-            cr[n_out, side, 1] = my
-        if not ok:
-            continue
-        # 1. the neighbour lines: the nearest sample of family f across the middle sample, on each side
-        mid = (a + b) // 2
-        sm = sid[mid]
-        qx, qy = q[sm, 0], q[sm, 1]
-        tx, ty = e[n_p + p, 0] - e[p, 0], e[n_p + p, 1] - e[p, 1]
-        half = 0.5 * math.hypot(tx, ty)
-        if half <= 0.0:
-            continue
-        tx /= 2.0 * half
-        ty /= 2.0 * half
-        nearest = np.full(2, across_r + 1.0)
-        nk = np.full(2, -1, np.intp)
-        cx0, cx1, cy0, cy1 = _cells(qx, qy, across_r + half, x0, y0, cell, gw, gh)
-        for cy in range(cy0, cy1 + 1):
-            for cx in range(cx0, cx1 + 1):
-                c = cy * gw + cx
-                for it in range(start[c], start[c + 1]):
-                    s = items[it]
-                    k = pos_of[s]
-                    if k < 0 or fam[s] != f or piece[k] == p:
-                        continue
-                    dx, dy = q[s, 0] - qx, q[s, 1] - qy
-                    al = dx * tx + dy * ty
-                    ac = dx * ty - dy * tx
-                    if abs(al) > half or abs(ac) < 1.0:
-                        continue
-                    sd = 0 if ac < 0 else 1
-                    if abs(ac) < nearest[sd]:
-                        nearest[sd] = abs(ac)
-                        nk[sd] = s
-        n_k = 0
-        why[p] = 3 if (nk[0] < 0 and nk[1] < 0) else 4
-        for sd in range(2):
-            if nk[sd] < 0 or nearest[sd] > across_r:
-                continue
-            kv = val[piece[pos_of[nk[sd]]]]  # the neighbour's piece's line (its trimmed ends carry none)
-            if math.isfinite(kv):
-                kn = int(kv)
-                kc[n_out, n_k] = kn - 1
-                kc[n_out, n_k + 1] = kn + 1
-                n_k += 2
-        if n_k == 0:
-            continue
-        why[p] = 0
-        for j in range(n_k, 4):
-            kc[n_out, j] = kc[n_out, 0]
-        cand[n_out] = p
-        fp[n_out] = f
-        n_out += 1
-    return cand[:n_out], cr[:n_out], kc[:n_out], fp[:n_out], why
+def _fam_items(c, f, start, ncell):
+    """The item range of cell c holding family f (the grid's items split by family, `sample_grid_split`)."""
+    mid = start[ncell + 1 + c]
+    if f == 1:
+        return start[c], mid
+    return mid, start[c + 1]
 
 
 @njit
-def _k_verdicts(kc, m, res, z, tol, z_lo, z_hi):
-    """Step 2's verdict per piece: the one candidate line whose two crossings land within tol of consecutive
-    lines of the other family inside [z_lo, z_hi]; _NONE where none or more than one (distinct) pass.
-    m, res, z: (nc, 4, 2) per candidate and crossing."""
+def _k_pieces(sid, piece, index, n_p):
+    """Per piece (n_p): its first and last trace positions (end_pos (2n_p,): first, then last), whether it is
+    labelled and its line (val, NaN: none; the first labelled sample's), as `piece_ends` gives them without the
+    ends' directions (computed here only for the pieces whose crossings are looked for)."""
+    end_pos = np.full(2 * n_p, -1, np.intp)
+    labelled = np.zeros(n_p, np.bool_)
+    val = np.full(n_p, np.nan)
+    for k in range(sid.shape[0]):
+        p = piece[k]
+        if end_pos[p] < 0:
+            end_pos[p] = k
+        end_pos[n_p + p] = k
+        v = index[sid[k]]
+        if not labelled[p] and math.isfinite(v):
+            labelled[p] = True
+            val[p] = v
+    return end_pos, labelled, val
+
+
+@njit
+def _end(p, side, n_p, end_pos, q, sid, tangent, anchor):
+    """A piece end's position and outward unit direction, as `_continuation_kernels.piece_ends`: the chord from
+    the sample `anchor` places inside, or the trace tangent where that chord is shorter than 1.5 px."""
+    a, b = end_pos[p], end_pos[n_p + p]
+    if side == 0:
+        k = a
+        j = min(a + anchor, b)
+        sgn = -1.0
+    else:
+        k = b
+        j = max(b - anchor, a)
+        sgn = 1.0
+    ex, ey = q[sid[k], 0], q[sid[k], 1]
+    d0 = ex - q[sid[j], 0]
+    d1 = ey - q[sid[j], 1]
+    L = math.sqrt(d0 * d0 + d1 * d1)
+    if L >= 1.5:
+        return ex, ey, d0 / L, d1 / L
+    return ex, ey, sgn * tangent[k, 0], sgn * tangent[k, 1]
+
+
+@njit
+def _crossings(p, q, fam, sid, piece, tangent, end_pos, anchor, n_p, f, reach, lateral, cross_r, x0, y0, cell, gw, gh, start, items, pos_of, cr):
+    """Step 2 for piece p (family f): its two gap middles into cr[p]; 0 when both are found, 1 when an end has
+    no facing piece of its line within reach, 2 when a gap has no sample of the other family within cross_r
+    of its middle."""
+    ncell = gw * gh
+    for side in range(2):
+        ex, ey, ux, uy = _end(p, side, n_p, end_pos, q, sid, tangent, anchor)
+        # the facing sample of the same family ahead: the first of the next piece of the line
+        best = reach + 1.0
+        bx = 0.0
+        by = 0.0
+        cx0, cx1, cy0, cy1 = _cells(ex + 0.5 * reach * ux, ey + 0.5 * reach * uy, 0.5 * reach + lateral + _BEND * reach, x0, y0, cell, gw, gh)
+        for cy in range(cy0, cy1 + 1):
+            for cx in range(cx0, cx1 + 1):
+                i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
+                for it in range(i0, i1):
+                    s = items[it]
+                    k = pos_of[s]
+                    if k < 0 or piece[k] == p:
+                        continue
+                    dx, dy = q[s, 0] - ex, q[s, 1] - ey
+                    al = dx * ux + dy * uy
+                    if al > 0.0 and al <= reach and al < best and abs(dx * uy - dy * ux) <= lateral + _BEND * al:
+                        best = al
+                        bx, by = q[s, 0], q[s, 1]
+        if best > reach:
+            return 1
+        mx, my = 0.5 * (ex + bx), 0.5 * (ey + by)
+        # a crossing, not a silhouette or a shadow: a sample of the other family near the gap's middle
+        hit = False
+        cx0, cx1, cy0, cy1 = _cells(mx, my, cross_r, x0, y0, cell, gw, gh)
+        for cy in range(cy0, cy1 + 1):
+            for cx in range(cx0, cx1 + 1):
+                i0, i1 = _fam_items(cy * gw + cx, 3 - f, start, ncell)
+                for it in range(i0, i1):
+                    s = items[it]
+                    if (q[s, 0] - mx) ** 2 + (q[s, 1] - my) ** 2 <= cross_r * cross_r:
+                        hit = True
+                        break
+                if hit:
+                    break
+            if hit:
+                break
+        if not hit:
+            return 2
+        cr[p, side, 0] = mx
+        cr[p, side, 1] = my
+    return 0
+
+
+@njit
+def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, anchor, min_samples, reach, lateral, cross_r, across_r,
+             dirty, first_round, x0, y0, cell, gw, gh, start, items, pos_of):
+    """One round of steps 1 and 2 over the unlabelled pieces of at least min_samples samples. Step 1: the
+    nearest trace sample of the piece's family across its middle sample on each side (within its half length
+    and across_r / 2 along, across_r across); each side whose sample's piece is labelled (val (n_p,), NaN: none) proposes that
+    line ± 1. Step 2 (`_crossings`) then, once per piece (kept in why and cr). After the first round only
+    pieces whose search reaches a dirty cell (a sample labelled in the last round) are looked at again.
+
+    why (n_p,) int8, updated in place: 6 not looked at yet, 5 not tried (labelled, or short), 1 no facing
+    piece, 2 no crossing in a gap, 3 no neighbour line, 4 no labelled neighbour line, 0 a candidate.
+    Returns the candidates (nc,), their lines kc (nc, 4) int64 (padding: the first repeated), and the rows of
+    the sheet check: crossing pixels (8nc, 2), family (8nc,), line (8nc,), in the order candidate, line, end."""
+    ncell = gw * gh
+    cand = np.empty(n_p, np.intp)
+    kc = np.empty((n_p, 4), np.int64)
+    n_out = 0
+    for p in range(n_p):
+        if why[p] == 5 or why[p] == 1 or why[p] == 2:
+            continue
+        a, b = end_pos[p], end_pos[n_p + p]
+        if why[p] == 6:
+            if labelled[p] or b - a + 1 < min_samples:
+                why[p] = 5
+                continue
+        elif labelled[p]:
+            continue
+        f = fam[sid[a]]
+        mid = (a + b) // 2
+        sm = sid[mid]
+        qx, qy = q[sm, 0], q[sm, 1]
+        tx, ty = q[sid[b], 0] - q[sid[a], 0], q[sid[b], 1] - q[sid[a], 1]
+        half = 0.5 * math.hypot(tx, ty)
+        if half <= 0.0:
+            why[p] = 5
+            continue
+        tx /= 2.0 * half
+        ty /= 2.0 * half
+        reach_al = min(half, 0.5 * across_r)  # beside the piece's middle (long pieces: not their whole length)
+        cx0, cx1, cy0, cy1 = _cells(qx, qy, math.hypot(across_r, reach_al), x0, y0, cell, gw, gh)
+        if not first_round:
+            seen = False
+            for cy in range(cy0, cy1 + 1):
+                for cx in range(cx0, cx1 + 1):
+                    seen = seen or dirty[cy * gw + cx]
+            if not seen:
+                continue
+        near0 = across_r + 1.0
+        near1 = across_r + 1.0
+        s0 = -1
+        s1 = -1
+        for cy in range(cy0, cy1 + 1):
+            for cx in range(cx0, cx1 + 1):
+                i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
+                for it in range(i0, i1):
+                    s = items[it]
+                    k = pos_of[s]
+                    if k < 0 or piece[k] == p:
+                        continue
+                    dx, dy = q[s, 0] - qx, q[s, 1] - qy
+                    if abs(dx * tx + dy * ty) > reach_al:
+                        continue
+                    ac = dx * ty - dy * tx
+                    if ac <= -1.0:
+                        if -ac < near0:
+                            near0 = -ac
+                            s0 = s
+                    elif ac >= 1.0 and ac < near1:
+                        near1 = ac
+                        s1 = s
+        n_k = 0
+        for sd in range(2):
+            s = s0 if sd == 0 else s1
+            if s < 0 or (near0 if sd == 0 else near1) > across_r:
+                continue
+            kv = val[piece[pos_of[s]]]  # the neighbour's piece's line (its trimmed ends carry none)
+            if math.isfinite(kv):
+                kc[n_out, n_k] = int(kv) - 1
+                kc[n_out, n_k + 1] = int(kv) + 1
+                n_k += 2
+        if n_k == 0:
+            why[p] = 3 if (s0 < 0 and s1 < 0) else 4
+            continue
+        if why[p] != 0:  # the crossings, once per piece
+            w = _crossings(p, q, fam, sid, piece, tangent, end_pos, anchor, n_p, f, reach, lateral, cross_r, x0, y0, cell, gw, gh, start, items, pos_of, cr)
+            why[p] = w
+            if w != 0:
+                continue
+        for j in range(n_k, 4):
+            kc[n_out, j] = kc[n_out, 0]
+        cand[n_out] = p
+        n_out += 1
+    cq = np.empty((8 * n_out, 2))
+    cf = np.empty(8 * n_out, np.int64)
+    ck = np.empty(8 * n_out, np.int64)
+    for i in range(n_out):
+        p = cand[i]
+        f = fam[sid[end_pos[p]]]
+        for j in range(4):
+            for sd in range(2):
+                r = 8 * i + 2 * j + sd
+                cq[r, 0] = cr[p, sd, 0]
+                cq[r, 1] = cr[p, sd, 1]
+                cf[r] = f
+                ck[r] = kc[i, j]
+    return cand[:n_out], kc[:n_out], cq, cf, ck
+
+
+@njit
+def _k_verdicts(cand, kc, m, res, z, tol, z_lo, z_hi, end_pos, n_p, sid, q, fam):
+    """Step 2's verdict per candidate: the one line whose two crossings land within tol of consecutive lines of
+    the other family inside [z_lo, z_hi] (m, res, z: (8nc,) in `_k_round`'s row order); _NONE where none or
+    more than one (distinct) pass. Returns k_of (nc,), the number ambiguous, and the accepted pieces' samples
+    for step 3: trace positions, owner (candidate rank), q, family, line."""
     nc = kc.shape[0]
-    out = np.full(nc, _NONE, np.int64)
+    k_of = np.full(nc, _NONE, np.int64)
     amb = 0
+    tot = 0
     for i in range(nc):
         got = False
         k_ok = 0
         many = False
         for j in range(4):
-            good = abs(m[i, j, 1] - m[i, j, 0]) == 1
-            for s in range(2):
-                good = good and res[i, j, s] <= tol and z[i, j, s] >= z_lo and z[i, j, s] <= z_hi
+            r = 8 * i + 2 * j
+            good = abs(m[r + 1] - m[r]) == 1
+            for sd in range(2):
+                good = good and res[r + sd] <= tol and z[r + sd] >= z_lo and z[r + sd] <= z_hi
             if good:
                 if got and kc[i, j] != k_ok:
                     many = True
                 got = True
                 k_ok = kc[i, j]
         if got and not many:
-            out[i] = k_ok
-        amb += many
-    return out, amb
-
-
-@njit
-def _k_gather(cand, k_of, end_pos, n_p, sid, q, fam):
-    """The accepted pieces' samples: trace positions, owner rank, q, family, line."""
-    tot = 0
-    for i in range(cand.shape[0]):
-        if k_of[i] != _NONE:
+            k_of[i] = k_ok
             p = cand[i]
             tot += end_pos[n_p + p] - end_pos[p] + 1
+        amb += many
     pos = np.empty(tot, np.int64)
     owner = np.empty(tot, np.int64)
     qs = np.empty((tot, 2))
     fs = np.empty(tot, np.int64)
     ks = np.empty(tot, np.int64)
     w = 0
-    for i in range(cand.shape[0]):
+    for i in range(nc):
         if k_of[i] == _NONE:
             continue
         p = cand[i]
@@ -239,13 +315,16 @@ def _k_gather(cand, k_of, end_pos, n_p, sid, q, fam):
             fs[w] = fam[s]
             ks[w] = k_of[i]
             w += 1
-    return pos, owner, qs, fs, ks
+    return k_of, amb, pos, owner, qs, fs, ks
 
 
 @njit
-def _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, end_pos, n_p, ts, sid, trim_px, index):
+def _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, end_pos, n_p, ts, sid, trim_px, index, labelled, val, q, dirty,
+             x0, y0, cell, gw, gh):
     """Step 3 and the write: an accepted piece whose samples all lie in [z_lo, z_hi] on its sheet takes line
-    k, except within trim_px of its ends. Returns pieces and samples written."""
+    k, except within trim_px of its ends; the piece is marked labelled (labelled, val) and the cells of its
+    samples dirty (dirty cleared first). Returns pieces and samples written."""
+    dirty[:] = False
     nc = k_of.shape[0]
     all_in = np.ones(nc, np.bool_)
     for w in range(pos.shape[0]):
@@ -261,10 +340,20 @@ def _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, end_pos, n_p, ts, sid, trim
         x = pos[w]
         a, b = end_pos[p], end_pos[n_p + p]
         if min(ts[x] - ts[a], ts[b] - ts[x]) >= trim_px:
-            index[sid[x]] = k_of[i]
+            s = sid[x]
+            index[s] = k_of[i]
             wrote[i] = True
             n_s += 1
-    return int(wrote.sum()), n_s
+            cx = min(gw - 1, max(0, int((q[s, 0] - x0) / cell)))
+            cy = min(gh - 1, max(0, int((q[s, 1] - y0) / cell)))
+            dirty[cy * gw + cx] = True
+    n_w = 0
+    for i in range(nc):
+        if wrote[i]:
+            labelled[cand[i]] = True
+            val[cand[i]] = k_of[i]
+            n_w += 1
+    return n_w, n_s
 
 
 def label_beside_lines(
@@ -308,30 +397,30 @@ def label_beside_lines(
     n_p = int(piece[-1]) + 1
     z_lo, z_hi = float(depth_range_mm[0]), float(depth_range_mm[1])
     x0, y0, cell, gw, gh, start, items, pos_of = grid
-    start = start[: gw * gh + 1]
-    for _ in range(rounds):
-        e, u, end_pos, labelled, val, _ = piece_ends(q, sid, piece, tangent, index, seed_jid, n_p, int(anchor))
-        cand, cr, kc, fp, why = _k_candidates(q, fam, sid, piece, val, e, u, end_pos, labelled, n_p, int(min_samples),
-                                         float(reach_px), float(lateral_px), float(mix_sigma * sigma_px), float(across_px),
-                                         x0, y0, cell, gw, gh, start, items, pos_of)
-        nc = len(cand)
-        if "left_out" not in stats:  # the first round's reasons
+    if len(start) != 2 * gw * gh + 1:
+        raise ValueError("label_beside_lines needs the bucket grid split by family: build it with labelling._sample_grid(..., fam)")
+    end_pos, labelled, val = _k_pieces(sid, piece, index, n_p)
+    why = np.full(n_p, 6, np.int8)
+    cr = np.zeros((n_p, 2, 2))
+    dirty = np.zeros(gw * gh, np.bool_)
+    for r in range(rounds):
+        cand, kc, cq, cf, ck = _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, int(anchor), int(min_samples),
+                                        float(reach_px), float(lateral_px), float(mix_sigma * sigma_px), float(across_px),
+                                        dirty, r == 0, x0, y0, cell, gw, gh, start, items, pos_of)
+        if r == 0:  # the first round's reasons
             stats["left_out"] = dict(zip(("no_facing_piece", "no_crossing", "no_neighbour", "neighbour_unlabelled"),
-                                         (int(c) for c in np.bincount(why, minlength=5)[1:])))
-        if nc == 0:
+                                         (int(c) for c in np.bincount(why, minlength=7)[1:5])))
+        if len(cand) == 0:
             break
-        cq = np.broadcast_to(cr[:, None, :, :], (nc, 4, 2, 2)).reshape(-1, 2)
-        cf = np.repeat(fp, 8)
-        ck = np.repeat(kc.reshape(-1), 2)
         _, z, m, res = model.sheet_check(cq, cf, ck)
-        k_of, n_amb = _k_verdicts(kc, np.asarray(m, np.int64).reshape(nc, 4, 2), np.asarray(res).reshape(nc, 4, 2),
-                                  np.asarray(z).reshape(nc, 4, 2), float(tol_px), z_lo, z_hi)
+        k_of, n_amb, pos, owner, qs, fs, ks = _k_verdicts(cand, kc, np.asarray(m, np.int64), res, z, float(tol_px), z_lo, z_hi,
+                                                          end_pos, n_p, sid, q, fam)
         stats["ambiguous"] += int(n_amb)
-        pos, owner, qs, fs, ks = _k_gather(cand, k_of, end_pos, n_p, sid, q, fam)
         if len(pos) == 0:
             break
         zs = model.sheet_depth(qs, fs, ks)
-        n_pieces, n_samples = _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, end_pos, n_p, ts, sid, float(trim_px), index)
+        n_pieces, n_samples = _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, end_pos, n_p, ts, sid, float(trim_px), index,
+                                       labelled, val, q, dirty, x0, y0, cell, gw, gh)
         if n_samples == 0:
             break
         stats["pieces"] += int(n_pieces)
