@@ -45,6 +45,7 @@ from reconstruction.rigmodel import RigModel
 # sample may lie this share of its distance ahead off the end's tangent, on top of lateral_px
 _BEND = float(np.sin(np.deg2rad(12.0)))
 _NONE = np.iinfo(np.int64).min  # no line (indices are negative too)
+_ROWS = 12  # sheet-check rows per candidate piece: per candidate line its two crossings and its neighbour sample
 
 
 @njit
@@ -171,10 +172,12 @@ def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, 
     why (n_p,) int8, updated in place: 6 not looked at yet, 5 not tried (labelled, or short), 1 no facing
     piece, 2 no crossing in a gap, 3 no neighbour line, 4 no labelled neighbour line, 0 a candidate.
     Returns the candidates (nc,), their lines kc (nc, 4) int64 (padding: the first repeated), and the rows of
-    the sheet check: crossing pixels (8nc, 2), family (8nc,), line (8nc,), in the order candidate, line, end."""
+    the sheet check (_ROWS per candidate piece: per candidate line its two crossings, then the neighbour sample
+    on the neighbour's line): pixels (12nc, 2), family (12nc,), line (12nc,)."""
     ncell = gw * gh
     cand = np.empty(n_p, np.intp)
     kc = np.empty((n_p, 4), np.int64)
+    nb = np.empty((n_p, 4), np.intp)  # each candidate's neighbour sample
     n_out = 0
     for p in range(n_p):
         if why[p] == 5 or why[p] == 1 or why[p] == 2:
@@ -238,6 +241,8 @@ def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, 
             if math.isfinite(kv):
                 kc[n_out, n_k] = int(kv) - 1
                 kc[n_out, n_k + 1] = int(kv) + 1
+                nb[n_out, n_k] = s
+                nb[n_out, n_k + 1] = s
                 n_k += 2
         if n_k == 0:
             why[p] = 3 if (s0 < 0 and s1 < 0) else 4
@@ -249,28 +254,36 @@ def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, 
                 continue
         for j in range(n_k, 4):
             kc[n_out, j] = kc[n_out, 0]
+            nb[n_out, j] = nb[n_out, 0]
         cand[n_out] = p
         n_out += 1
-    cq = np.empty((8 * n_out, 2))
-    cf = np.empty(8 * n_out, np.int64)
-    ck = np.empty(8 * n_out, np.int64)
+    cq = np.empty((_ROWS * n_out, 2))
+    cf = np.empty(_ROWS * n_out, np.int64)
+    ck = np.empty(_ROWS * n_out, np.int64)
     for i in range(n_out):
         p = cand[i]
         f = fam[sid[end_pos[p]]]
         for j in range(4):
+            r = _ROWS * i + 3 * j
             for sd in range(2):
-                r = 8 * i + 2 * j + sd
-                cq[r, 0] = cr[p, sd, 0]
-                cq[r, 1] = cr[p, sd, 1]
-                cf[r] = f
-                ck[r] = kc[i, j]
+                cq[r + sd, 0] = cr[p, sd, 0]
+                cq[r + sd, 1] = cr[p, sd, 1]
+                cf[r + sd] = f
+                ck[r + sd] = kc[i, j]
+            # the neighbour sample on its own sheet (its line: the candidate's middle one)
+            s = nb[i, j]
+            cq[r + 2, 0] = q[s, 0]
+            cq[r + 2, 1] = q[s, 1]
+            cf[r + 2] = f
+            ck[r + 2] = kc[i, j] - 1 if (j % 2) == 1 else kc[i, j] + 1
     return cand[:n_out], kc[:n_out], cq, cf, ck
 
 
 @njit
 def _k_verdicts(cand, kc, m, res, z, tol, z_lo, z_hi, end_pos, n_p, sid, q, fam):
     """Step 2's verdict per candidate: the one line whose two crossings land within tol of consecutive lines of
-    the other family inside [z_lo, z_hi] (m, res, z: (8nc,) in `_k_round`'s row order); _NONE where none or
+    the other family inside [z_lo, z_hi] and whose neighbour sample, on the neighbour's sheet, lies nearest to one of those two lines (m, res, z:
+    (12nc,) in `_k_round`'s row order); _NONE where none or
     more than one (distinct) pass. Returns k_of (nc,), the number ambiguous, and the accepted pieces' samples
     for step 3: trace positions, owner (candidate rank), q, family, line."""
     nc = kc.shape[0]
@@ -282,8 +295,8 @@ def _k_verdicts(cand, kc, m, res, z, tol, z_lo, z_hi, end_pos, n_p, sid, q, fam)
         k_ok = 0
         many = False
         for j in range(4):
-            r = 8 * i + 2 * j
-            good = abs(m[r + 1] - m[r]) == 1
+            r = _ROWS * i + 3 * j
+            good = abs(m[r + 1] - m[r]) == 1 and (m[r + 2] == m[r] or m[r + 2] == m[r + 1]) and z[r + 2] >= z_lo and z[r + 2] <= z_hi
             for sd in range(2):
                 good = good and res[r + sd] <= tol and z[r + sd] >= z_lo and z[r + sd] <= z_hi
             if good:
