@@ -45,7 +45,9 @@ from reconstruction.rigmodel import RigModel
 # sample may lie this share of its distance ahead off the end's tangent, on top of lateral_px
 _BEND = float(np.sin(np.deg2rad(12.0)))
 _NONE = np.iinfo(np.int64).min  # no line (indices are negative too)
-_ROWS = 12  # sheet-check rows per candidate piece: per candidate line its two crossings and its neighbour sample
+_SPAN = 1  # the lines tried: the neighbour's line ± 1 (the neighbour's own line is checked, never chosen: no ranking)
+_LINES = 2 * _SPAN + 1
+_ROWS = 2 * _LINES + 2  # sheet-check rows per candidate piece: each line's two crossings, each side's neighbour sample
 
 
 @njit
@@ -171,13 +173,14 @@ def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, 
 
     why (n_p,) int8, updated in place: 6 not looked at yet, 5 not tried (labelled, or short), 1 no facing
     piece, 2 no crossing in a gap, 3 no neighbour line, 4 no labelled neighbour line, 0 a candidate.
-    Returns the candidates (nc,), their lines kc (nc, 4) int64 (padding: the first repeated), and the rows of
-    the sheet check (_ROWS per candidate piece: per candidate line its two crossings, then the neighbour sample
-    on the neighbour's line): pixels (12nc, 2), family (12nc,), line (12nc,)."""
+    Returns the candidates (nc,), kc (nc, 3) int64: the centre line (side 0's neighbour line, else side 1's),
+    then each side's neighbour line (_NONE: none), and the rows of the sheet check, _ROWS per candidate piece:
+    its two crossings on the sheets centre − 1, centre, centre + 1, then each side's neighbour sample on its own
+    sheet (the other side's where one side has none): pixels (_ROWS·nc, 2), family and line (_ROWS·nc,)."""
     ncell = gw * gh
     cand = np.empty(n_p, np.intp)
-    kc = np.empty((n_p, 4), np.int64)
-    nb = np.empty((n_p, 4), np.intp)  # each candidate's neighbour sample
+    kc = np.empty((n_p, 3), np.int64)  # the centre line, then each side's neighbour line (_NONE: none)
+    nb = np.empty((n_p, 2), np.intp)  # each side's neighbour sample (the other side's where none)
     n_out = 0
     for p in range(n_p):
         if why[p] == 5 or why[p] == 1 or why[p] == 2:
@@ -232,19 +235,19 @@ def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, 
                     elif ac >= 1.0 and ac < near1:
                         near1 = ac
                         s1 = s
-        n_k = 0
+        kn0 = _NONE
+        kn1 = _NONE
         for sd in range(2):
             s = s0 if sd == 0 else s1
             if s < 0 or (near0 if sd == 0 else near1) > across_r:
                 continue
             kv = val[piece[pos_of[s]]]  # the neighbour's piece's line (its trimmed ends carry none)
             if math.isfinite(kv):
-                kc[n_out, n_k] = int(kv) - 1
-                kc[n_out, n_k + 1] = int(kv) + 1
-                nb[n_out, n_k] = s
-                nb[n_out, n_k + 1] = s
-                n_k += 2
-        if n_k == 0:
+                if sd == 0:
+                    kn0 = int(kv)
+                else:
+                    kn1 = int(kv)
+        if kn0 == _NONE and kn1 == _NONE:
             why[p] = 3 if (s0 < 0 and s1 < 0) else 4
             continue
         if why[p] != 0:  # the crossings, once per piece
@@ -252,10 +255,12 @@ def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, 
             why[p] = w
             if w != 0:
                 continue
-        for j in range(n_k, 4):
-            kc[n_out, j] = kc[n_out, 0]
-            nb[n_out, j] = nb[n_out, 0]
         cand[n_out] = p
+        kc[n_out, 0] = kn0 if kn0 != _NONE else kn1  # the centre of the lines tried
+        kc[n_out, 1] = kn0
+        kc[n_out, 2] = kn1
+        nb[n_out, 0] = s0 if kn0 != _NONE else s1
+        nb[n_out, 1] = s1 if kn1 != _NONE else s0
         n_out += 1
     cq = np.empty((_ROWS * n_out, 2))
     cf = np.empty(_ROWS * n_out, np.int64)
@@ -263,52 +268,75 @@ def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, 
     for i in range(n_out):
         p = cand[i]
         f = fam[sid[end_pos[p]]]
-        for j in range(4):
-            r = _ROWS * i + 3 * j
+        for j in range(_LINES):
+            r = _ROWS * i + 2 * j
             for sd in range(2):
                 cq[r + sd, 0] = cr[p, sd, 0]
                 cq[r + sd, 1] = cr[p, sd, 1]
                 cf[r + sd] = f
-                ck[r + sd] = kc[i, j]
-            # the neighbour sample on its own sheet (its line: the candidate's middle one)
-            s = nb[i, j]
-            cq[r + 2, 0] = q[s, 0]
-            cq[r + 2, 1] = q[s, 1]
-            cf[r + 2] = f
-            ck[r + 2] = kc[i, j] - 1 if (j % 2) == 1 else kc[i, j] + 1
+                ck[r + sd] = kc[i, 0] - _SPAN + j
+        for sd in range(2):  # the neighbour samples on their own sheets
+            r = _ROWS * i + 2 * _LINES + sd
+            s = nb[i, sd]
+            cq[r, 0] = q[s, 0]
+            cq[r, 1] = q[s, 1]
+            cf[r] = f
+            ck[r] = kc[i, 1 + sd] if kc[i, 1 + sd] != _NONE else kc[i, 0]
     return cand[:n_out], kc[:n_out], cq, cf, ck
 
 
 @njit
-def _k_verdicts(cand, kc, m, res, z, tol, z_lo, z_hi, end_pos, n_p, sid, q, fam):
-    """Step 2's verdict per candidate: the one line whose two crossings land within tol of consecutive lines of
-    the other family inside [z_lo, z_hi] and whose neighbour sample, on the neighbour's sheet, lies nearest to one of those two lines (m, res, z:
-    (12nc,) in `_k_round`'s row order); _NONE where none or
-    more than one (distinct) pass. Returns k_of (nc,), the number ambiguous, and the accepted pieces' samples
-    for step 3: trace positions, owner (candidate rank), q, family, line."""
+def _k_verdicts(cand, kc, m, res, z, tol, margin, z_lo, z_hi, end_pos, n_p, sid, q, fam):
+    """Step 2's verdict per candidate piece. A line's score is the larger of the piece's two crossings' residuals
+    on its sheet where both land inside [z_lo, z_hi] on consecutive lines of the other family. Of the two lines
+    beside the neighbour's line the better must score within tol and the other at least margin·tol (else
+    ambiguous, counted: the two are two sheets apart, and where the other family's lines run nearly along the
+    epipolar lines a wrong sheet moves the crossings little), and it must be next to every labelled
+    neighbour line, whose sample, on its own sheet, lies in the depth range nearest to one of the two lines of
+    the other family that the crossings name (the same cell on both lines). m, res, z: (_ROWS·nc,) in
+    `_k_round`'s row order. Returns k_of (nc,) (_NONE: not accepted), the number ambiguous, and the accepted
+    pieces' samples for step 3: trace positions, owner (candidate rank), q, family, line."""
     nc = kc.shape[0]
     k_of = np.full(nc, _NONE, np.int64)
     amb = 0
     tot = 0
     for i in range(nc):
-        got = False
-        k_ok = 0
-        many = False
-        for j in range(4):
-            r = _ROWS * i + 3 * j
-            good = abs(m[r + 1] - m[r]) == 1 and (m[r + 2] == m[r] or m[r + 2] == m[r + 1]) and z[r + 2] >= z_lo and z[r + 2] <= z_hi
-            for sd in range(2):
-                good = good and res[r + sd] <= tol and z[r + sd] >= z_lo and z[r + sd] <= z_hi
-            if good:
-                if got and kc[i, j] != k_ok:
-                    many = True
-                got = True
-                k_ok = kc[i, j]
-        if got and not many:
-            k_of[i] = k_ok
+        # each line's score: the larger crossing residual, where both crossings lie in the depth range on
+        # consecutive lines of the other family (otherwise the line is out: the depth range decides)
+        best = np.inf
+        second = np.inf
+        j_ok = 0
+        for j in range(_LINES):
+            r = _ROWS * i + 2 * j
+            if j == _SPAN or abs(m[r + 1] - m[r]) != 1:  # the piece is not its neighbour's line
+                continue
+            if not (z[r] >= z_lo and z[r] <= z_hi and z[r + 1] >= z_lo and z[r + 1] <= z_hi):
+                continue
+            sc = max(res[r], res[r + 1])
+            if sc < best:
+                second = best
+                best = sc
+                j_ok = j
+            elif sc < second:
+                second = sc
+        if best > tol:
+            continue
+        if second < margin * tol:  # a rival line nearly as good: ambiguous
+            amb += 1
+            continue
+        k = kc[i, 0] - _SPAN + j_ok
+        r = _ROWS * i + 2 * j_ok
+        ok = True
+        for sd in range(2):
+            kn = kc[i, 1 + sd]
+            if kn == _NONE:
+                continue
+            rn = _ROWS * i + 2 * _LINES + sd
+            ok = ok and abs(k - kn) == 1 and (m[rn] == m[r] or m[rn] == m[r + 1]) and z[rn] >= z_lo and z[rn] <= z_hi
+        if ok:
+            k_of[i] = k
             p = cand[i]
             tot += end_pos[n_p + p] - end_pos[p] + 1
-        amb += many
     pos = np.empty(tot, np.int64)
     owner = np.empty(tot, np.int64)
     qs = np.empty((tot, 2))
@@ -388,6 +416,7 @@ def label_beside_lines(
     mix_sigma: float = 2.0,
     trim_px: float = 0.0,
     tol_px: float = 1.0,
+    margin: float = 2.0,
     lateral_px: float = 1.0,
     min_samples: int = 4,
     anchor: int = 3,
@@ -426,7 +455,7 @@ def label_beside_lines(
         if len(cand) == 0:
             break
         _, z, m, res = model.sheet_check(cq, cf, ck)
-        k_of, n_amb, pos, owner, qs, fs, ks = _k_verdicts(cand, kc, np.asarray(m, np.int64), res, z, float(tol_px), z_lo, z_hi,
+        k_of, n_amb, pos, owner, qs, fs, ks = _k_verdicts(cand, kc, np.asarray(m, np.int64), res, z, float(tol_px), float(margin), z_lo, z_hi,
                                                           end_pos, n_p, sid, q, fam)
         stats["ambiguous"] += int(n_amb)
         if len(pos) == 0:
