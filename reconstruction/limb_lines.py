@@ -11,25 +11,35 @@ surface labels of 9d (the labelled surface lies on one side only) do not reach t
 A piece P of family f is labelled here from two independent directions:
 
 1. **Across: its neighbour line.** The nearest trace sample of family f beside P's middle sample (within
-   `across_px` across P's line, within P's half length along it, on each side) belongs to a labelled line k_n.
-   P is then line k_n + 1 or k_n − 1 (lines of one family do not cross; which of the two depends on the side
-   and the rig): two candidates, not the whole pattern.
+   `across_px` across P's line, within half of P's length and half of `across_px` along it), on each side,
+   belongs to a labelled line k_n. P is then line k_n + 1 or k_n − 1 (lines of one family do not cross; which
+   of the two depends on the side and the rig): two candidates, not the whole pattern.
 2. **Along: both crossings on P's own sheet.** P's two ends face the next pieces of its line across the gaps
-   that the crossings' mixing zones cut (a facing sample of family f ahead of the end on its tangent, within
-   `reach_px` and `lateral_px`, and a sample of the other family within `cross_px` of the gap's middle: a
-   crossing, not a silhouette or a shadow). The mixing zone is cut around the other line on both sides of it,
-   so the crossing is the gap's middle. On light sheet k each crossing's ray must land within `tol_px`
-   projector px of a line m of the other family inside the depth range, and the two crossings on consecutive
-   lines (|m_b − m_a| = 1: a piece spans one cell). A candidate k is accepted only when it is the only one
-   that passes (both candidates passing is ambiguous: left out).
+   that the crossings' mixing zones cut (a facing sample of family f ahead of the end, within `reach_px` and
+   `lateral_px` + sin 12° of the distance off the end's tangent, and a sample of the other family within
+   mix_sigma·σ of the gap's middle: a crossing, not a silhouette or a shadow). The mixing zone is cut around
+   the other line on both sides of it, so the crossing is the gap's middle. A candidate k scores the larger of
+   its two crossings' residuals on light sheet k where both land inside the depth range on consecutive lines
+   m, m ± 1 of the other family (a piece spans one cell). The better candidate must score within `tol_px`
+   projector px and the other at least `margin`·`tol_px` (else ambiguous: left out). Near a limb a wrong sheet
+   moves the crossings by only ~1.2–1.7 projector px per line (decision 0103), so the crossings alone do not
+   tell adjacent lines apart; they choose between the two lines beside the neighbour, two sheets apart. Every
+   labelled neighbour line must be next to k, and each neighbour sample, on its own sheet, must lie inside the
+   depth range nearest to m or m ± 1 (the same cell on both lines: a neighbour two lines away, the adjacent
+   line missing, fails here).
 3. **Working volume.** Every sample of P on sheet k lies inside the depth range.
+
+A wrongly labelled neighbour line is carried to P (its offset fits P's crossings as well): this step grows a
+mislabelled patch by the pieces beside it, as every step that spreads labels does (decision 0103).
 
 The samples within `trim_px` of P's ends are left out (the crossings' light pulls the ridge there; the gap
 filling and the crossing fill put points there where the line is labelled on both sides). Repeated for `rounds`
 rounds: pieces labelled in one round are the neighbour lines of the next (the band is a few lines wide).
 
-Kernels: per round one compiled pass finds the candidates (bucket grid of the frame's valid samples,
-`labelling._sample_grid`), `RigModel.sheet_check` checks the crossings, `RigModel.sheet_depth` the samples.
+Kernels: one pass for the pieces' ends and labels (`_k_pieces`); per round one compiled pass for steps 1 and 2's
+geometry (`_k_round`, on the frame's bucket grid split by family, `labelling._sample_grid`; the crossings once
+per piece, and after the first round only pieces near a newly labelled sample), `RigModel.sheet_check` for the
+crossings and neighbours, `_k_verdicts`, `RigModel.sheet_depth` for step 3 and `_k_write`.
 """
 
 from __future__ import annotations
@@ -174,7 +184,8 @@ def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, 
     why (n_p,) int8, updated in place: 6 not looked at yet, 5 not tried (labelled, or short), 1 no facing
     piece, 2 no crossing in a gap, 3 no neighbour line, 4 no labelled neighbour line, 0 a candidate.
     Returns the candidates (nc,), kc (nc, 3) int64: the centre line (side 0's neighbour line, else side 1's),
-    then each side's neighbour line (_NONE: none), and the rows of the sheet check, _ROWS per candidate piece:
+    then each side's neighbour line (_NONE: none), nb (nc, 2) each side's neighbour sample (the other side's
+    where one side has none), and the rows of the sheet check, _ROWS per candidate piece:
     its two crossings on the sheets centre − 1, centre, centre + 1, then each side's neighbour sample on its own
     sheet (the other side's where one side has none): pixels (_ROWS·nc, 2), family and line (_ROWS·nc,)."""
     ncell = gw * gh
@@ -282,7 +293,7 @@ def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, 
             cq[r, 1] = q[s, 1]
             cf[r] = f
             ck[r] = kc[i, 1 + sd] if kc[i, 1 + sd] != _NONE else kc[i, 0]
-    return cand[:n_out], kc[:n_out], cq, cf, ck
+    return cand[:n_out], kc[:n_out], nb[:n_out], cq, cf, ck
 
 
 @njit
@@ -360,10 +371,11 @@ def _k_verdicts(cand, kc, m, res, z, tol, margin, z_lo, z_hi, end_pos, n_p, sid,
 
 
 @njit
-def _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, end_pos, n_p, ts, sid, trim_px, index, labelled, val, q, dirty,
+def _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, nb, end_pos, n_p, ts, sid, trim_px, index, seed_jid, labelled, val, q, dirty,
              x0, y0, cell, gw, gh):
     """Step 3 and the write: an accepted piece whose samples all lie in [z_lo, z_hi] on its sheet takes line
-    k, except within trim_px of its ends; the piece is marked labelled (labelled, val) and the cells of its
+    k, except within trim_px of its ends, with the junction of its (first) neighbour sample (seed_jid, as the
+    surface labels of decision 0093 do); the piece is marked labelled (labelled, val) and the cells of its
     samples dirty (dirty cleared first). Returns pieces and samples written."""
     dirty[:] = False
     nc = k_of.shape[0]
@@ -383,6 +395,7 @@ def _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, end_pos, n_p, ts, sid, trim
         if min(ts[x] - ts[a], ts[b] - ts[x]) >= trim_px:
             s = sid[x]
             index[s] = k_of[i]
+            seed_jid[s] = seed_jid[nb[i, 0]]
             wrote[i] = True
             n_s += 1
             cx = min(gw - 1, max(0, int((q[s, 0] - x0) / cell)))
@@ -427,11 +440,17 @@ def label_beside_lines(
 
     q (P, 2) camera px, fam (P,) 1/2; the traces as `labelling.label_samples` builds them: sid (n,) sample ids by
     piece and position, piece (n,) non-decreasing, ts (n,) position along the piece (px), tangent (n, 2).
-    index (P,) float (NaN: unlabelled) is written in place. grid: the frame's bucket grid of the valid samples
-    (`labelling._sample_grid`). sigma_px: extraction's smoothing; a crossing needs a sample of the other family
-    within mix_sigma·σ of the gap's middle. reach_px: the longest crossing gap (camera px); across_px: how far
-    across its line a piece's neighbour line may lie (camera px); tol_px: projector px. Returns counts: pieces
-    and samples labelled, pieces left out as ambiguous."""
+    index (P,) float (NaN: unlabelled) and seed_jid (P,) int (the junction of the piece's neighbour sample) are
+    written in place. grid: the frame's bucket grid of the valid samples split by family
+    (`labelling._sample_grid(..., fam)`; ValueError otherwise). sigma_px: extraction's smoothing; a crossing needs
+    a sample of the other family within mix_sigma·σ of the gap's middle. reach_px: the longest crossing gap
+    (camera px); across_px: how far across its line a piece's neighbour line may lie (camera px); tol_px:
+    projector px; margin: the other candidate must miss by margin·tol_px; lateral_px: camera px; pieces shorter
+    than min_samples are not tried; anchor: samples inside an end for its direction; rounds: at most this many
+    (each round's labels are the next round's neighbours). Returns counts: pieces and samples labelled, pieces
+    left out as ambiguous, and the first round's pieces left out by reason (`left_out`: no facing piece, no
+    crossing in a gap, no neighbour line, no labelled neighbour line; the crossings are looked for only beside a
+    labelled neighbour line)."""
     stats = {"pieces": 0, "samples": 0, "ambiguous": 0}
     n = len(piece)
     if n == 0:
@@ -446,7 +465,7 @@ def label_beside_lines(
     cr = np.zeros((n_p, 2, 2))
     dirty = np.zeros(gw * gh, np.bool_)
     for r in range(rounds):
-        cand, kc, cq, cf, ck = _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, int(anchor), int(min_samples),
+        cand, kc, nb, cq, cf, ck = _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, int(anchor), int(min_samples),
                                         float(reach_px), float(lateral_px), float(mix_sigma * sigma_px), float(across_px),
                                         dirty, r == 0, x0, y0, cell, gw, gh, start, items, pos_of)
         if r == 0:  # the first round's reasons
@@ -461,8 +480,8 @@ def label_beside_lines(
         if len(pos) == 0:
             break
         zs = model.sheet_depth(qs, fs, ks)
-        n_pieces, n_samples = _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, end_pos, n_p, ts, sid, float(trim_px), index,
-                                       labelled, val, q, dirty, x0, y0, cell, gw, gh)
+        n_pieces, n_samples = _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, nb, end_pos, n_p, ts, sid, float(trim_px), index,
+                                       seed_jid, labelled, val, q, dirty, x0, y0, cell, gw, gh)
         if n_samples == 0:
             break
         stats["pieces"] += int(n_pieces)
