@@ -587,9 +587,10 @@ class TraceOptions:
         labelled samples' depths within surface_radius junction steps beyond the piece's half extent, with
         neighbours on all sides of the piece and a residual far below one sheet step; surface_rounds rounds
         (`reconstruction.surface_labels`, decision 0093).
-    beside_lines: label a piece beside a labelled line of its family (k ± 1) when its two crossings, the middles of
-        the gaps the mixing zone cuts, land on consecutive lines of the other family on its own sheet for exactly
-        one of the two (`reconstruction.limb_lines`, decision 0103: compressed bands at a limb).
+    beside_lines: label a piece beside a labelled line of its family k_n with k_n ± 1 when its two crossings, the
+        middles of the gaps the mixing zone cuts, land on consecutive lines of the other family on its own sheet
+        within cross_residual_px for one of the two and miss by twice that for the other, the neighbour in the same
+        cell (`reconstruction.limb_lines`, decision 0103: compressed bands at a limb).
     t_nodes: piece_junctions' nodes with one family through (T's) join its graph; the through line's pieces
         at a T are labelled only at the pattern's rim (`reconstruction.t_nodes`, decision 0098).
     """
