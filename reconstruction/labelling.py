@@ -33,6 +33,7 @@ from reconstruction.geometry import camera_rays_proj, epipolar_lines, paper_epip
 from reconstruction.piece_junctions import label_piece_junctions
 from reconstruction.piece_seeds import seed_one_sided
 from reconstruction.surface_labels import label_from_surface
+from reconstruction.limb_lines import label_beside_lines
 from reconstruction.rigmodel import UNLABELLED, RigModel
 from reconstruction.trace_ends import cut_facing_ends, cut_far_ends
 
@@ -586,6 +587,10 @@ class TraceOptions:
         labelled samples' depths within surface_radius junction steps beyond the piece's half extent, with
         neighbours on all sides of the piece and a residual far below one sheet step; surface_rounds rounds
         (`reconstruction.surface_labels`, decision 0093).
+    beside_lines: label a piece beside a labelled line of its family k_n with k_n ± 1 when its two crossings, the
+        middles of the gaps the mixing zone cuts, land on consecutive lines of the other family on its own sheet
+        within cross_residual_px for one of the two and miss by twice that for the other, the neighbour in the same
+        cell (`reconstruction.limb_lines`, decision 0103: compressed bands at a limb).
     t_nodes: piece_junctions' nodes with one family through (T's) join its graph; the through line's pieces
         at a T are labelled only at the pattern's rim (`reconstruction.t_nodes`, decision 0098).
     """
@@ -622,6 +627,7 @@ class TraceOptions:
     surface_rounds: int = 3
     surface_radius: float = 1.0
     t_nodes: bool = True
+    beside_lines: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -1006,6 +1012,16 @@ def label_samples(
                                     trim_px=options.cross_trim_sigma * sigma_px, min_samples=options.cross_min_samples,
                                     rounds=options.surface_rounds)
             stats["samples_surface_labels"] = sf["samples"]
+        if options.beside_lines and options.cross_pieces and model is not None and grid is not None:
+            # pieces beside a labelled line of their family, confirmed at both crossings on their sheet (decision 0103)
+            bl = label_beside_lines(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
+                                    grid=grid, sigma_px=sigma_px, mix_sigma=options.mix_sigma,
+                                    reach_px=cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
+                                                                    min_angle_deg=options.continue_gap_deg or 45.0),
+                                    across_px=model.junction_step_cam_px, trim_px=options.cross_trim_sigma * sigma_px,
+                                    tol_px=options.cross_residual_px, lateral_px=options.seed_lateral_px * cell,
+                                    min_samples=options.cross_min_samples, anchor=options.fill_anchor)
+            stats["samples_beside_lines"] = bl["samples"]
         if options.far_end_check and model is not None and grid is not None:
             # a seeded trace that ran across a depth edge onto a collinear line of another surface: the
             # crossing at its far end names another line (decision 0084, `reconstruction.trace_ends`)

@@ -16,8 +16,9 @@ from reconstruction.rigmodel import UNLABELLED, rig_model
 from tests.reconstruction._piece_junctions_reference import _k_associate, _k_cluster, _label_piece_junctions_reference
 
 # the step (off by default) measured on its own: the steps that also fill a hole in the junction labels (the
-# continuation and decision 0089's piece seeds, both before it) off
-_ALONE = {"continue_lines": False, "piece_seeds": False, "piece_junctions": True}
+# continuation and decision 0089's piece seeds, both before it, and decision 0103's lines beside labelled lines,
+# after it) off
+_ALONE = {"continue_lines": False, "piece_seeds": False, "piece_junctions": True, "beside_lines": False}
 
 
 def _true_index(s, q: np.ndarray, fam: np.ndarray) -> np.ndarray:

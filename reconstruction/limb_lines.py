@@ -1,0 +1,489 @@
+"""Label trace pieces beside a labelled line of their family, confirmed at both crossings (decision 0103).
+
+Where a curved surface turns away towards its limb (the cylinder and sphere of the converged rigs), the grid
+compresses in the image across the lines that run along the limb: neighbouring lines of that family come within
+a few smoothing scales of one another, and the other family's short stretches between them lie entirely in the
+crossings' mixing zones (`labelling.label_samples` step 1). What is left there are the along-limb family's
+pieces, each one cell long between two crossings, with no labelled sample of the other family near them: the
+crossing checks of steps 6 and 9b, the piece junctions of 9c (no piece of the other family to cross) and the
+surface labels of 9d (the labelled surface lies on one side only) do not reach them.
+
+A piece P of family f is labelled here from two independent directions:
+
+1. **Across: its neighbour line.** The nearest trace sample of family f beside P's middle sample (within
+   `across_px` across P's line, within half of P's length and half of `across_px` along it), on each side,
+   belongs to a labelled line k_n. P is then line k_n + 1 or k_n − 1 (lines of one family do not cross; which
+   of the two depends on the side and the rig): two candidates, not the whole pattern.
+2. **Along: both crossings on P's own sheet.** P's two ends face the next pieces of its line across the gaps
+   that the crossings' mixing zones cut (a facing sample of family f ahead of the end, within `reach_px` and
+   `lateral_px` + sin 12° of the distance off the end's tangent, and a sample of the other family within
+   mix_sigma·σ of the gap's middle: a crossing, not a silhouette or a shadow). The mixing zone is cut around
+   the other line on both sides of it, so the crossing is the gap's middle. A candidate k scores the larger of
+   its two crossings' residuals on light sheet k where both land inside the depth range on consecutive lines
+   m, m ± 1 of the other family (a piece spans one cell). The better candidate must score within `tol_px`
+   projector px and the other at least `margin`·`tol_px` (else ambiguous: left out). Near a limb a wrong sheet
+   moves the crossings by only ~1.2–1.7 projector px per line (decision 0103), so the crossings alone do not
+   tell adjacent lines apart; they choose between the two lines beside the neighbour, two sheets apart. Every
+   labelled neighbour line must be next to k, and each neighbour sample, on its own sheet, must lie inside the
+   depth range nearest to m or m ± 1 (the same cell on both lines: a neighbour two lines away, the adjacent
+   line missing, fails here).
+3. **Working volume.** Every sample of P on sheet k lies inside the depth range.
+
+A wrongly labelled neighbour line is carried to P (its offset fits P's crossings as well): this step grows a
+mislabelled patch by the pieces beside it, as every step that spreads labels does (decision 0103).
+
+The samples within `trim_px` of P's ends are left out (the crossings' light pulls the ridge there; the gap
+filling and the crossing fill put points there where the line is labelled on both sides). Repeated for `rounds`
+rounds: pieces labelled in one round are the neighbour lines of the next (the band is a few lines wide).
+
+Kernels: one pass for the pieces' ends and labels (`_k_pieces`); per round one compiled pass for steps 1 and 2's
+geometry (`_k_round`, on the frame's bucket grid split by family, `labelling._sample_grid`; the crossings once
+per piece, and after the first round only pieces near a newly labelled sample), `RigModel.sheet_check` for the
+crossings and neighbours, `_k_verdicts`, `RigModel.sheet_depth` for step 3 and `_k_write`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from reconstruction._jit import njit
+from reconstruction.rigmodel import RigModel
+
+# a line may turn by up to 12° across a crossing's gap (the continuation's limit, decision 0072): the facing
+# sample may lie this share of its distance ahead off the end's tangent, on top of lateral_px
+_BEND = float(np.sin(np.deg2rad(12.0)))
+_NONE = np.iinfo(np.int64).min  # no line (indices are negative too)
+_SPAN = 1  # the lines tried: the neighbour's line ± 1 (the neighbour's own line is checked, never chosen: no ranking)
+_LINES = 2 * _SPAN + 1
+_ROWS = 2 * _LINES + 2  # sheet-check rows per candidate piece: each line's two crossings, each side's neighbour sample
+
+
+@njit
+def _cells(x, y, r, x0, y0, cell, gw, gh):
+    """The cell range (cx0, cx1, cy0, cy1) inclusive that a disk of radius r around (x, y) touches."""
+    cx0 = max(0, int(math.floor((x - r - x0) / cell)))
+    cx1 = min(gw - 1, int(math.floor((x + r - x0) / cell)))
+    cy0 = max(0, int(math.floor((y - r - y0) / cell)))
+    cy1 = min(gh - 1, int(math.floor((y + r - y0) / cell)))
+    return cx0, cx1, cy0, cy1
+
+
+@njit
+def _fam_items(c, f, start, ncell):
+    """The item range of cell c holding family f (the grid's items split by family, `sample_grid_split`)."""
+    mid = start[ncell + 1 + c]
+    if f == 1:
+        return start[c], mid
+    return mid, start[c + 1]
+
+
+@njit
+def _k_pieces(sid, piece, index, n_p):
+    """Per piece (n_p): its first and last trace positions (end_pos (2n_p,): first, then last), whether it is
+    labelled and its line (val, NaN: none; the first labelled sample's), as `piece_ends` gives them without the
+    ends' directions (computed here only for the pieces whose crossings are looked for)."""
+    end_pos = np.full(2 * n_p, -1, np.intp)
+    labelled = np.zeros(n_p, np.bool_)
+    val = np.full(n_p, np.nan)
+    for k in range(sid.shape[0]):
+        p = piece[k]
+        if end_pos[p] < 0:
+            end_pos[p] = k
+        end_pos[n_p + p] = k
+        v = index[sid[k]]
+        if not labelled[p] and math.isfinite(v):
+            labelled[p] = True
+            val[p] = v
+    return end_pos, labelled, val
+
+
+@njit
+def _end(p, side, n_p, end_pos, q, sid, tangent, anchor):
+    """A piece end's position and outward unit direction, as `_continuation_kernels.piece_ends`: the chord from
+    the sample `anchor` places inside, or the trace tangent where that chord is shorter than 1.5 px."""
+    a, b = end_pos[p], end_pos[n_p + p]
+    if side == 0:
+        k = a
+        j = min(a + anchor, b)
+        sgn = -1.0
+    else:
+        k = b
+        j = max(b - anchor, a)
+        sgn = 1.0
+    ex, ey = q[sid[k], 0], q[sid[k], 1]
+    d0 = ex - q[sid[j], 0]
+    d1 = ey - q[sid[j], 1]
+    L = math.sqrt(d0 * d0 + d1 * d1)
+    if L >= 1.5:
+        return ex, ey, d0 / L, d1 / L
+    return ex, ey, sgn * tangent[k, 0], sgn * tangent[k, 1]
+
+
+@njit
+def _crossings(p, q, fam, sid, piece, tangent, end_pos, anchor, n_p, f, reach, lateral, cross_r, x0, y0, cell, gw, gh, start, items, pos_of, cr):
+    """Step 2 for piece p (family f): its two gap middles into cr[p]; 0 when both are found, 1 when an end has
+    no facing piece of its line within reach, 2 when a gap has no sample of the other family within cross_r
+    of its middle."""
+    ncell = gw * gh
+    for side in range(2):
+        ex, ey, ux, uy = _end(p, side, n_p, end_pos, q, sid, tangent, anchor)
+        # the facing sample of the same family ahead: the first of the next piece of the line
+        best = reach + 1.0
+        bx = 0.0
+        by = 0.0
+        cx0, cx1, cy0, cy1 = _cells(ex + 0.5 * reach * ux, ey + 0.5 * reach * uy, 0.5 * reach + lateral + _BEND * reach, x0, y0, cell, gw, gh)
+        for cy in range(cy0, cy1 + 1):
+            for cx in range(cx0, cx1 + 1):
+                i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
+                for it in range(i0, i1):
+                    s = items[it]
+                    k = pos_of[s]
+                    if k < 0 or piece[k] == p:
+                        continue
+                    dx, dy = q[s, 0] - ex, q[s, 1] - ey
+                    al = dx * ux + dy * uy
+                    if al > 0.0 and al <= reach and al < best and abs(dx * uy - dy * ux) <= lateral + _BEND * al:
+                        best = al
+                        bx, by = q[s, 0], q[s, 1]
+        if best > reach:
+            return 1
+        mx, my = 0.5 * (ex + bx), 0.5 * (ey + by)
+        # a crossing, not a silhouette or a shadow: a sample of the other family near the gap's middle
+        hit = False
+        cx0, cx1, cy0, cy1 = _cells(mx, my, cross_r, x0, y0, cell, gw, gh)
+        for cy in range(cy0, cy1 + 1):
+            for cx in range(cx0, cx1 + 1):
+                i0, i1 = _fam_items(cy * gw + cx, 3 - f, start, ncell)
+                for it in range(i0, i1):
+                    s = items[it]
+                    if (q[s, 0] - mx) ** 2 + (q[s, 1] - my) ** 2 <= cross_r * cross_r:
+                        hit = True
+                        break
+                if hit:
+                    break
+            if hit:
+                break
+        if not hit:
+            return 2
+        cr[p, side, 0] = mx
+        cr[p, side, 1] = my
+    return 0
+
+
+@njit
+def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, anchor, min_samples, reach, lateral, cross_r, across_r,
+             dirty, first_round, x0, y0, cell, gw, gh, start, items, pos_of):
+    """One round of steps 1 and 2 over the unlabelled pieces of at least min_samples samples. Step 1: the
+    nearest trace sample of the piece's family across its middle sample on each side (within its half length
+    and across_r / 2 along, across_r across); each side whose sample's piece is labelled (val (n_p,), NaN: none) proposes that
+    line ± 1. Step 2 (`_crossings`) then, once per piece (kept in why and cr). After the first round only
+    pieces whose search reaches a dirty cell (a sample labelled in the last round) are looked at again.
+
+    why (n_p,) int8, updated in place: 6 not looked at yet, 5 not tried (labelled, or short), 1 no facing
+    piece, 2 no crossing in a gap, 3 no neighbour line, 4 no labelled neighbour line, 0 a candidate.
+    Returns the candidates (nc,), kc (nc, 3) int64: the centre line (side 0's neighbour line, else side 1's),
+    then each side's neighbour line (_NONE: none), nb (nc, 2) each side's neighbour sample (the other side's
+    where one side has none), and the rows of the sheet check, _ROWS per candidate piece:
+    its two crossings on the sheets centre − 1, centre, centre + 1, then each side's neighbour sample on its own
+    sheet (the other side's where one side has none): pixels (_ROWS·nc, 2), family and line (_ROWS·nc,)."""
+    ncell = gw * gh
+    cand = np.empty(n_p, np.intp)
+    kc = np.empty((n_p, 3), np.int64)  # the centre line, then each side's neighbour line (_NONE: none)
+    nb = np.empty((n_p, 2), np.intp)  # each side's neighbour sample (the other side's where none)
+    n_out = 0
+    for p in range(n_p):
+        if why[p] == 5 or why[p] == 1 or why[p] == 2:
+            continue
+        a, b = end_pos[p], end_pos[n_p + p]
+        if why[p] == 6:
+            if labelled[p] or b - a + 1 < min_samples:
+                why[p] = 5
+                continue
+        elif labelled[p]:
+            continue
+        f = fam[sid[a]]
+        mid = (a + b) // 2
+        sm = sid[mid]
+        qx, qy = q[sm, 0], q[sm, 1]
+        tx, ty = q[sid[b], 0] - q[sid[a], 0], q[sid[b], 1] - q[sid[a], 1]
+        half = 0.5 * math.hypot(tx, ty)
+        if half <= 0.0:
+            why[p] = 5
+            continue
+        tx /= 2.0 * half
+        ty /= 2.0 * half
+        reach_al = min(half, 0.5 * across_r)  # beside the piece's middle (long pieces: not their whole length)
+        cx0, cx1, cy0, cy1 = _cells(qx, qy, math.hypot(across_r, reach_al), x0, y0, cell, gw, gh)
+        if not first_round:
+            seen = False
+            for cy in range(cy0, cy1 + 1):
+                for cx in range(cx0, cx1 + 1):
+                    seen = seen or dirty[cy * gw + cx]
+            if not seen:
+                continue
+        near0 = across_r + 1.0
+        near1 = across_r + 1.0
+        s0 = -1
+        s1 = -1
+        for cy in range(cy0, cy1 + 1):
+            for cx in range(cx0, cx1 + 1):
+                i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
+                for it in range(i0, i1):
+                    s = items[it]
+                    k = pos_of[s]
+                    if k < 0 or piece[k] == p:
+                        continue
+                    dx, dy = q[s, 0] - qx, q[s, 1] - qy
+                    if abs(dx * tx + dy * ty) > reach_al:
+                        continue
+                    ac = dx * ty - dy * tx
+                    if ac <= -1.0:
+                        if -ac < near0:
+                            near0 = -ac
+                            s0 = s
+                    elif ac >= 1.0 and ac < near1:
+                        near1 = ac
+                        s1 = s
+        kn0 = _NONE
+        kn1 = _NONE
+        for sd in range(2):
+            s = s0 if sd == 0 else s1
+            if s < 0 or (near0 if sd == 0 else near1) > across_r:
+                continue
+            kv = val[piece[pos_of[s]]]  # the neighbour's piece's line (its trimmed ends carry none)
+            if math.isfinite(kv):
+                if sd == 0:
+                    kn0 = int(kv)
+                else:
+                    kn1 = int(kv)
+        if kn0 == _NONE and kn1 == _NONE:
+            why[p] = 3 if (s0 < 0 and s1 < 0) else 4
+            continue
+        if why[p] != 0:  # the crossings, once per piece
+            w = _crossings(p, q, fam, sid, piece, tangent, end_pos, anchor, n_p, f, reach, lateral, cross_r, x0, y0, cell, gw, gh, start, items, pos_of, cr)
+            why[p] = w
+            if w != 0:
+                continue
+        cand[n_out] = p
+        kc[n_out, 0] = kn0 if kn0 != _NONE else kn1  # the centre of the lines tried
+        kc[n_out, 1] = kn0
+        kc[n_out, 2] = kn1
+        nb[n_out, 0] = s0 if kn0 != _NONE else s1
+        nb[n_out, 1] = s1 if kn1 != _NONE else s0
+        n_out += 1
+    cq = np.empty((_ROWS * n_out, 2))
+    cf = np.empty(_ROWS * n_out, np.int64)
+    ck = np.empty(_ROWS * n_out, np.int64)
+    for i in range(n_out):
+        p = cand[i]
+        f = fam[sid[end_pos[p]]]
+        for j in range(_LINES):
+            r = _ROWS * i + 2 * j
+            for sd in range(2):
+                cq[r + sd, 0] = cr[p, sd, 0]
+                cq[r + sd, 1] = cr[p, sd, 1]
+                cf[r + sd] = f
+                ck[r + sd] = kc[i, 0] - _SPAN + j
+        for sd in range(2):  # the neighbour samples on their own sheets
+            r = _ROWS * i + 2 * _LINES + sd
+            s = nb[i, sd]
+            cq[r, 0] = q[s, 0]
+            cq[r, 1] = q[s, 1]
+            cf[r] = f
+            ck[r] = kc[i, 1 + sd] if kc[i, 1 + sd] != _NONE else kc[i, 0]
+    return cand[:n_out], kc[:n_out], nb[:n_out], cq, cf, ck
+
+
+@njit
+def _k_verdicts(cand, kc, m, res, z, tol, margin, z_lo, z_hi, end_pos, n_p, sid, q, fam):
+    """Step 2's verdict per candidate piece. A line's score is the larger of the piece's two crossings' residuals
+    on its sheet where both land inside [z_lo, z_hi] on consecutive lines of the other family. Of the two lines
+    beside the neighbour's line the better must score within tol and the other at least margin·tol (else
+    ambiguous, counted: the two are two sheets apart, and where the other family's lines run nearly along the
+    epipolar lines a wrong sheet moves the crossings little), and it must be next to every labelled
+    neighbour line, whose sample, on its own sheet, lies in the depth range nearest to one of the two lines of
+    the other family that the crossings name (the same cell on both lines). m, res, z: (_ROWS·nc,) in
+    `_k_round`'s row order. Returns k_of (nc,) (_NONE: not accepted), the number ambiguous, and the accepted
+    pieces' samples for step 3: trace positions, owner (candidate rank), q, family, line."""
+    nc = kc.shape[0]
+    k_of = np.full(nc, _NONE, np.int64)
+    amb = 0
+    tot = 0
+    for i in range(nc):
+        # each line's score: the larger crossing residual, where both crossings lie in the depth range on
+        # consecutive lines of the other family (otherwise the line is out: the depth range decides)
+        best = np.inf
+        second = np.inf
+        j_ok = 0
+        for j in range(_LINES):
+            r = _ROWS * i + 2 * j
+            if j == _SPAN or abs(m[r + 1] - m[r]) != 1:  # the piece is not its neighbour's line
+                continue
+            if not (z[r] >= z_lo and z[r] <= z_hi and z[r + 1] >= z_lo and z[r + 1] <= z_hi):
+                continue
+            sc = max(res[r], res[r + 1])
+            if sc < best:
+                second = best
+                best = sc
+                j_ok = j
+            elif sc < second:
+                second = sc
+        if best > tol:
+            continue
+        if second < margin * tol:  # a rival line nearly as good: ambiguous
+            amb += 1
+            continue
+        k = kc[i, 0] - _SPAN + j_ok
+        r = _ROWS * i + 2 * j_ok
+        ok = True
+        for sd in range(2):
+            kn = kc[i, 1 + sd]
+            if kn == _NONE:
+                continue
+            rn = _ROWS * i + 2 * _LINES + sd
+            ok = ok and abs(k - kn) == 1 and (m[rn] == m[r] or m[rn] == m[r + 1]) and z[rn] >= z_lo and z[rn] <= z_hi
+        if ok:
+            k_of[i] = k
+            p = cand[i]
+            tot += end_pos[n_p + p] - end_pos[p] + 1
+    pos = np.empty(tot, np.int64)
+    owner = np.empty(tot, np.int64)
+    qs = np.empty((tot, 2))
+    fs = np.empty(tot, np.int64)
+    ks = np.empty(tot, np.int64)
+    w = 0
+    for i in range(nc):
+        if k_of[i] == _NONE:
+            continue
+        p = cand[i]
+        for x in range(end_pos[p], end_pos[n_p + p] + 1):
+            s = sid[x]
+            pos[w] = x
+            owner[w] = i
+            qs[w, 0] = q[s, 0]
+            qs[w, 1] = q[s, 1]
+            fs[w] = fam[s]
+            ks[w] = k_of[i]
+            w += 1
+    return k_of, amb, pos, owner, qs, fs, ks
+
+
+@njit
+def _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, nb, end_pos, n_p, ts, sid, trim_px, index, seed_jid, labelled, val, q, dirty,
+             x0, y0, cell, gw, gh):
+    """Step 3 and the write: an accepted piece whose samples all lie in [z_lo, z_hi] on its sheet takes line
+    k, except within trim_px of its ends, with the junction of its (first) neighbour sample (seed_jid, as the
+    surface labels of decision 0093 do); the piece is marked labelled (labelled, val) and the cells of its
+    samples dirty (dirty cleared first). Returns pieces and samples written."""
+    dirty[:] = False
+    nc = k_of.shape[0]
+    all_in = np.ones(nc, np.bool_)
+    for w in range(pos.shape[0]):
+        if not (zs[w] >= z_lo and zs[w] <= z_hi):
+            all_in[owner[w]] = False
+    wrote = np.zeros(nc, np.bool_)
+    n_s = 0
+    for w in range(pos.shape[0]):
+        i = owner[w]
+        if not all_in[i]:
+            continue
+        p = cand[i]
+        x = pos[w]
+        a, b = end_pos[p], end_pos[n_p + p]
+        if min(ts[x] - ts[a], ts[b] - ts[x]) >= trim_px:
+            s = sid[x]
+            index[s] = k_of[i]
+            seed_jid[s] = seed_jid[nb[i, 0]]
+            wrote[i] = True
+            n_s += 1
+            cx = min(gw - 1, max(0, int((q[s, 0] - x0) / cell)))
+            cy = min(gh - 1, max(0, int((q[s, 1] - y0) / cell)))
+            dirty[cy * gw + cx] = True
+    n_w = 0
+    for i in range(nc):
+        if wrote[i]:
+            labelled[cand[i]] = True
+            val[cand[i]] = k_of[i]
+            n_w += 1
+    return n_w, n_s
+
+
+def label_beside_lines(
+    q: np.ndarray,
+    fam: np.ndarray,
+    sid: np.ndarray,
+    piece: np.ndarray,
+    ts: np.ndarray,
+    tangent: np.ndarray,
+    index: np.ndarray,
+    seed_jid: np.ndarray,
+    *,
+    model: RigModel,
+    depth_range_mm: tuple[float, float],
+    grid: tuple,
+    sigma_px: float,
+    reach_px: float,
+    across_px: float,
+    mix_sigma: float = 2.0,
+    trim_px: float = 0.0,
+    tol_px: float = 1.0,
+    margin: float = 2.0,
+    lateral_px: float = 1.0,
+    min_samples: int = 4,
+    anchor: int = 3,
+    rounds: int = 8,
+) -> dict:
+    """Label unlabelled pieces beside a labelled line of their family whose two crossings confirm the line on
+    its own light sheet (module doc).
+
+    q (P, 2) camera px, fam (P,) 1/2; the traces as `labelling.label_samples` builds them: sid (n,) sample ids by
+    piece and position, piece (n,) non-decreasing, ts (n,) position along the piece (px), tangent (n, 2).
+    index (P,) float (NaN: unlabelled) and seed_jid (P,) int (the junction of the piece's neighbour sample) are
+    written in place. grid: the frame's bucket grid of the valid samples split by family
+    (`labelling._sample_grid(..., fam)`; ValueError otherwise). sigma_px: extraction's smoothing; a crossing needs
+    a sample of the other family within mix_sigma·σ of the gap's middle. reach_px: the longest crossing gap
+    (camera px); across_px: how far across its line a piece's neighbour line may lie (camera px); tol_px:
+    projector px; margin: the other candidate must miss by margin·tol_px; lateral_px: camera px; pieces shorter
+    than min_samples are not tried; anchor: samples inside an end for its direction; rounds: at most this many
+    (each round's labels are the next round's neighbours). Returns counts: pieces and samples labelled, pieces
+    left out as ambiguous, and the first round's pieces left out by reason (`left_out`: no facing piece, no
+    crossing in a gap, no neighbour line, no labelled neighbour line; the crossings are looked for only beside a
+    labelled neighbour line)."""
+    stats = {"pieces": 0, "samples": 0, "ambiguous": 0}
+    n = len(piece)
+    if n == 0:
+        return stats
+    n_p = int(piece[-1]) + 1
+    z_lo, z_hi = float(depth_range_mm[0]), float(depth_range_mm[1])
+    x0, y0, cell, gw, gh, start, items, pos_of = grid
+    if len(start) != 2 * gw * gh + 1:
+        raise ValueError("label_beside_lines needs the bucket grid split by family: build it with labelling._sample_grid(..., fam)")
+    end_pos, labelled, val = _k_pieces(sid, piece, index, n_p)
+    why = np.full(n_p, 6, np.int8)
+    cr = np.zeros((n_p, 2, 2))
+    dirty = np.zeros(gw * gh, np.bool_)
+    for r in range(rounds):
+        cand, kc, nb, cq, cf, ck = _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, int(anchor), int(min_samples),
+                                        float(reach_px), float(lateral_px), float(mix_sigma * sigma_px), float(across_px),
+                                        dirty, r == 0, x0, y0, cell, gw, gh, start, items, pos_of)
+        if r == 0:  # the first round's reasons
+            stats["left_out"] = dict(zip(("no_facing_piece", "no_crossing", "no_neighbour", "neighbour_unlabelled"),
+                                         (int(c) for c in np.bincount(why, minlength=7)[1:5])))
+        if len(cand) == 0:
+            break
+        _, z, m, res = model.sheet_check(cq, cf, ck)
+        k_of, n_amb, pos, owner, qs, fs, ks = _k_verdicts(cand, kc, np.asarray(m, np.int64), res, z, float(tol_px), float(margin), z_lo, z_hi,
+                                                          end_pos, n_p, sid, q, fam)
+        stats["ambiguous"] += int(n_amb)
+        if len(pos) == 0:
+            break
+        zs = model.sheet_depth(qs, fs, ks)
+        n_pieces, n_samples = _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, nb, end_pos, n_p, ts, sid, float(trim_px), index,
+                                       seed_jid, labelled, val, q, dirty, x0, y0, cell, gw, gh)
+        if n_samples == 0:
+            break
+        stats["pieces"] += int(n_pieces)
+        stats["samples"] += int(n_samples)
+    return stats
