@@ -293,6 +293,7 @@ def _triangulate(
         "samples_piece_seeds": int(sample_stats.get("samples_piece_seeds", 0)),
         "samples_surface_labels": int(sample_stats.get("samples_surface_labels", 0)),
         "samples_piece_junctions": int(sample_stats.get("samples_piece_junctions", 0)),
+        "samples_beside_lines": int(sample_stats.get("samples_beside_lines", 0)),
         "samples_crossing_filled": int(cp.stats["samples_crossing_filled"]) if cp is not None else 0,
         "samples_one_sided_filled": int(cp.stats.get("samples_one_sided_filled", 0)) if cp is not None else 0,
         "traces_conflicting": int(sample_stats.get("traces_conflicting", 0)),

@@ -230,3 +230,18 @@ def test_pieces_labelled_from_the_crossings_at_their_ends_and_filled_gaps_are_on
     cov_on = _coverage(s.truth, s.pattern, on.q_cam.astype(np.float64))
     cov_off = _coverage(s.truth, s.pattern, off.q_cam.astype(np.float64))
     assert cov_on > cov_off + 0.005, (cov_on, cov_off)
+
+
+def test_frame_stats_count_the_limb_step(small_scene_pitch16):
+    # decision 0103's step 9e: its sample count reaches the frame's stats (0 with the step off)
+    from dataclasses import replace
+
+    from reconstruction.labelling import TraceOptions
+
+    s = small_scene_pitch16
+    base = ReconstructOptions(depth_min_mm=s.depth_range_mm[0], depth_max_mm=s.depth_range_mm[1])
+    on = reconstruct(s.image, s.procam, s.pattern, options=base)
+    off = reconstruct(s.image, s.procam, s.pattern, options=replace(base, trace=replace(TraceOptions(), beside_lines=False)))
+    assert on.stats["samples_beside_lines"] >= 150, on.stats["samples_beside_lines"]
+    assert off.stats["samples_beside_lines"] == 0
+    assert on.n_points > off.n_points
