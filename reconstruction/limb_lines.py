@@ -49,7 +49,7 @@ import math
 import numpy as np
 
 from reconstruction._jit import njit
-from reconstruction.rigmodel import RigModel
+from reconstruction.rigmodel import RigModel, _k_sheet_check, _k_sheet_depth
 
 # a line may turn by up to 12° across a crossing's gap (the continuation's limit, decision 0072): the facing
 # sample may lie this share of its distance ahead off the end's tangent, on top of lateral_px
@@ -58,6 +58,7 @@ _NONE = np.iinfo(np.int64).min  # no line (indices are negative too)
 _SPAN = 1  # the lines tried: the neighbour's line ± 1 (the neighbour's own line is checked, never chosen: no ranking)
 _LINES = 2 * _SPAN + 1
 _ROWS = 2 * _LINES + 2  # sheet-check rows per candidate piece: each line's two crossings, each side's neighbour sample
+_DEPTH_ARGS = 18  # RigModel._sheet_check_args up to the nearest-line tables: `_k_sheet_depth`'s fixed arguments
 
 
 @njit
@@ -410,6 +411,214 @@ def _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, nb, end_pos, n_p, ts, sid, 
     return n_w, n_s
 
 
+@njit
+def _k_live_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, live, n_live, nbs, rect, n_p, anchor, min_samples, reach,
+                  lateral, cross_r, across_r, dirty, first_round, x0, y0, cell, gw, gh, start, items, pos_of):
+    """`_k_round` on the pieces that can still become candidates, with what does not change between rounds kept:
+    live[:n_live] (ascending piece ids, compacted in place) are the pieces `_k_round` would look at again
+    (why 6 before the first round; afterwards 0 or 4, unlabelled: a piece with no neighbour sample (3), no
+    facing piece (1), no crossing (2) or labelled stays as it is); nbs (n_p, 2) each side's neighbour sample
+    within across_r (−1: none) and rect (n_p, 4) the cell range of the search, both from the piece's first
+    search (the samples and the grid do not change, only the lines of their pieces, val). Same verdicts (why),
+    crossings (cr), candidates and rows as `_k_round`, in the same order. Returns them and the new n_live."""
+    cand = np.empty(n_live, np.intp)
+    kc = np.empty((n_live, 3), np.int64)
+    nb = np.empty((n_live, 2), np.intp)
+    n_out = 0
+    w_live = 0
+    for li in range(n_live):
+        p = live[li]
+        if first_round:
+            a, b = end_pos[p], end_pos[n_p + p]
+            if labelled[p] or b - a + 1 < min_samples:
+                why[p] = 5
+                continue
+            mid = (a + b) // 2
+            sm = sid[mid]
+            qx, qy = q[sm, 0], q[sm, 1]
+            tx, ty = q[sid[b], 0] - q[sid[a], 0], q[sid[b], 1] - q[sid[a], 1]
+            half = 0.5 * math.hypot(tx, ty)
+            if half <= 0.0:
+                why[p] = 5
+                continue
+            tx /= 2.0 * half
+            ty /= 2.0 * half
+            reach_al = min(half, 0.5 * across_r)
+            cx0, cx1, cy0, cy1 = _cells(qx, qy, math.hypot(across_r, reach_al), x0, y0, cell, gw, gh)
+            rect[p, 0] = cx0
+            rect[p, 1] = cx1
+            rect[p, 2] = cy0
+            rect[p, 3] = cy1
+            f = fam[sid[a]]
+            ncell = gw * gh
+            near0 = across_r + 1.0
+            near1 = across_r + 1.0
+            s0 = -1
+            s1 = -1
+            for cy in range(cy0, cy1 + 1):
+                for cx in range(cx0, cx1 + 1):
+                    i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
+                    for it in range(i0, i1):
+                        s = items[it]
+                        k = pos_of[s]
+                        if k < 0 or piece[k] == p:
+                            continue
+                        dx, dy = q[s, 0] - qx, q[s, 1] - qy
+                        if abs(dx * tx + dy * ty) > reach_al:
+                            continue
+                        ac = dx * ty - dy * tx
+                        if ac <= -1.0:
+                            if -ac < near0:
+                                near0 = -ac
+                                s0 = s
+                        elif ac >= 1.0 and ac < near1:
+                            near1 = ac
+                            s1 = s
+            if s0 < 0 and s1 < 0:  # no neighbour sample, now or later
+                why[p] = 3
+                continue
+            nbs[p, 0] = s0 if near0 <= across_r else -1
+            nbs[p, 1] = s1 if near1 <= across_r else -1
+        else:
+            if labelled[p]:
+                continue  # labelled in the last round: done
+            seen = False
+            for cy in range(rect[p, 2], rect[p, 3] + 1):
+                for cx in range(rect[p, 0], rect[p, 1] + 1):
+                    if dirty[cy * gw + cx]:
+                        seen = True
+                        break
+                if seen:
+                    break
+            if not seen:
+                live[w_live] = p
+                w_live += 1
+                continue
+        kn0 = _NONE
+        kn1 = _NONE
+        for sd in range(2):
+            s = nbs[p, sd]
+            if s < 0:
+                continue
+            kv = val[piece[pos_of[s]]]
+            if math.isfinite(kv):
+                if sd == 0:
+                    kn0 = int(kv)
+                else:
+                    kn1 = int(kv)
+        if kn0 == _NONE and kn1 == _NONE:
+            why[p] = 4
+            live[w_live] = p
+            w_live += 1
+            continue
+        if why[p] != 0:  # the crossings, once per piece
+            f = fam[sid[end_pos[p]]]
+            w = _crossings(p, q, fam, sid, piece, tangent, end_pos, anchor, n_p, f, reach, lateral, cross_r, x0, y0, cell, gw, gh, start, items,
+                           pos_of, cr)
+            why[p] = w
+            if w != 0:
+                continue
+        live[w_live] = p
+        w_live += 1
+        cand[n_out] = p
+        kc[n_out, 0] = kn0 if kn0 != _NONE else kn1
+        kc[n_out, 1] = kn0
+        kc[n_out, 2] = kn1
+        nb[n_out, 0] = nbs[p, 0] if kn0 != _NONE else nbs[p, 1]
+        nb[n_out, 1] = nbs[p, 1] if kn1 != _NONE else nbs[p, 0]
+        n_out += 1
+    cq = np.empty((_ROWS * n_out, 2))
+    cf = np.empty(_ROWS * n_out, np.intp)
+    ck = np.empty(_ROWS * n_out, np.intp)
+    for i in range(n_out):
+        p = cand[i]
+        f = fam[sid[end_pos[p]]]
+        for j in range(_LINES):
+            r = _ROWS * i + 2 * j
+            for sd in range(2):
+                cq[r + sd, 0] = cr[p, sd, 0]
+                cq[r + sd, 1] = cr[p, sd, 1]
+                cf[r + sd] = f
+                ck[r + sd] = kc[i, 0] - _SPAN + j
+        for sd in range(2):
+            r = _ROWS * i + 2 * _LINES + sd
+            s = nb[i, sd]
+            cq[r, 0] = q[s, 0]
+            cq[r, 1] = q[s, 1]
+            cf[r] = f
+            ck[r] = kc[i, 1 + sd] if kc[i, 1 + sd] != _NONE else kc[i, 0]
+    return cand[:n_out], kc[:n_out], nb[:n_out], cq, cf, ck, w_live
+
+
+@njit
+def _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_samples, reach, lateral, cross_r, across_r, tol, margin,
+           z_lo, z_hi, trim_px, rounds, x0, y0, cell, gw, gh, start, items, pos_of, check_args, depth_args):
+    """Every round in one call (`_k_pieces`, `_k_live_round`, `_k_sheet_check`, `_k_verdicts`, `_k_sheet_depth`,
+    `_k_write`): `RigModel.sheet_check` and `sheet_depth`'s compiled path with their fixed arguments
+    (check_args: `RigModel._sheet_check_args`; depth_args: its first 18, `_k_sheet_depth`'s). Returns ok,
+    pieces, samples, ambiguous and the first round's left-out counts (no facing piece, no crossing, no neighbour,
+    neighbour unlabelled). ok False: a pixel lay outside the camera table (the NumPy path's case); index and
+    seed_jid are then restored as they were and the caller runs the rounds again through `RigModel`."""
+    end_pos, labelled, val = _k_pieces(sid, piece, index, n_p)
+    why = np.full(n_p, 6, np.int8)
+    cr = np.zeros((n_p, 2, 2))
+    dirty = np.zeros(gw * gh, np.bool_)
+    live = np.arange(n_p)
+    n_live = n_p
+    nbs = np.empty((n_p, 2), np.intp)
+    rect = np.empty((n_p, 4), np.intp)
+    log_s = np.empty(index.shape[0], np.intp)  # the samples written and their junctions before: undone when not ok
+    log_j = np.empty(index.shape[0], seed_jid.dtype)
+    n_log = 0
+    n_pieces = 0
+    n_samples = 0
+    n_amb = 0
+    left = np.zeros(4, np.int64)
+    ok = True
+    for r in range(rounds):
+        cand, kc, nb, cq, cf, ck, n_live = _k_live_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, live, n_live, nbs, rect,
+                                                         n_p, anchor, min_samples, reach, lateral, cross_r, across_r, dirty, r == 0,
+                                                         x0, y0, cell, gw, gh, start, items, pos_of)
+        if r == 0:
+            for p in range(n_p):
+                if why[p] >= 1 and why[p] <= 4:
+                    left[why[p] - 1] += 1
+        nc = cand.shape[0]
+        if nc == 0:
+            break
+        nr = cq.shape[0]
+        p_tmp = np.empty((nr, 3))
+        z = np.empty(nr)
+        m, res = _k_sheet_check(cq, cf, ck, *check_args, np.empty((nr, 2)), np.empty(nr, np.bool_), p_tmp, np.empty(nr), z)
+        if m.shape[0] != nr:
+            ok = False
+            break
+        k_of, amb, pos, owner, qs, fs, ks = _k_verdicts(cand, kc, m, res, z, tol, margin, z_lo, z_hi, end_pos, n_p, sid, q, fam)
+        n_amb += amb
+        if pos.shape[0] == 0:
+            break
+        zs = np.empty(pos.shape[0])
+        if not _k_sheet_depth(qs, fs.astype(np.intp), ks.astype(np.intp), *depth_args, zs):
+            ok = False
+            break
+        for w in range(pos.shape[0]):  # the undo log: every sample an accepted piece may write
+            s = sid[pos[w]]
+            log_s[n_log] = s
+            log_j[n_log] = seed_jid[s]
+            n_log += 1
+        npc, nsm = _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, nb, end_pos, n_p, ts, sid, trim_px, index, seed_jid, labelled, val, q,
+                            dirty, x0, y0, cell, gw, gh)
+        if nsm == 0:
+            break
+        n_pieces += npc
+        n_samples += nsm
+    if not ok:
+        for i in range(n_log - 1, -1, -1):
+            index[log_s[i]] = np.nan
+            seed_jid[log_s[i]] = log_j[i]
+    return ok, n_pieces, n_samples, n_amb, left
+
+
 def label_beside_lines(
     q: np.ndarray,
     fam: np.ndarray,
@@ -460,6 +669,19 @@ def label_beside_lines(
     x0, y0, cell, gw, gh, start, items, pos_of = grid
     if len(start) != 2 * gw * gh + 1:
         raise ValueError("label_beside_lines needs the bucket grid split by family: build it with labelling._sample_grid(..., fam)")
+    fixed = model._sheet_check_args
+    if fixed is not None:
+        ok, n_pieces, n_samples, n_amb, left = _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, int(anchor), int(min_samples),
+                                                      float(reach_px), float(lateral_px), float(mix_sigma * sigma_px), float(across_px),
+                                                      float(tol_px), float(margin), z_lo, z_hi, float(trim_px), int(rounds),
+                                                      x0, y0, cell, gw, gh, start, items, pos_of, fixed, fixed[:_DEPTH_ARGS])
+        if ok:
+            stats["pieces"] = int(n_pieces)
+            stats["samples"] = int(n_samples)
+            stats["ambiguous"] = int(n_amb)
+            stats["left_out"] = dict(zip(("no_facing_piece", "no_crossing", "no_neighbour", "neighbour_unlabelled"), (int(c) for c in left)))
+            return stats
+    # the NumPy path of RigModel (a pixel outside the camera table, or no table): round by round
     end_pos, labelled, val = _k_pieces(sid, piece, index, n_p)
     why = np.full(n_p, 6, np.int8)
     cr = np.zeros((n_p, 2, 2))
