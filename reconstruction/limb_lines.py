@@ -58,7 +58,6 @@ _NONE = np.iinfo(np.int64).min  # no line (indices are negative too)
 _SPAN = 1  # the lines tried: the neighbour's line ± 1 (the neighbour's own line is checked, never chosen: no ranking)
 _LINES = 2 * _SPAN + 1
 _ROWS = 2 * _LINES + 2  # sheet-check rows per candidate piece: each line's two crossings, each side's neighbour sample
-_DEPTH_ARGS = 18  # RigModel._sheet_check_args up to the nearest-line tables: `_k_sheet_depth`'s fixed arguments
 
 
 @njit
@@ -88,15 +87,19 @@ def _k_pieces(sid, piece, index, n_p):
     end_pos = np.full(2 * n_p, -1, np.intp)
     labelled = np.zeros(n_p, np.bool_)
     val = np.full(n_p, np.nan)
-    for k in range(sid.shape[0]):
+    n = sid.shape[0]
+    k = 0
+    while k < n:  # piece by piece (piece is non-decreasing); index is read up to the piece's first labelled sample
         p = piece[k]
-        if end_pos[p] < 0:
-            end_pos[p] = k
-        end_pos[n_p + p] = k
-        v = index[sid[k]]
-        if not labelled[p] and math.isfinite(v):
-            labelled[p] = True
-            val[p] = v
+        end_pos[p] = k
+        while k < n and piece[k] == p:
+            if not labelled[p]:
+                v = index[sid[k]]
+                if math.isfinite(v):
+                    labelled[p] = True
+                    val[p] = v
+            k += 1
+        end_pos[n_p + p] = k - 1
     return end_pos, labelled, val
 
 
@@ -299,6 +302,12 @@ def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, 
 
 @njit
 def _k_verdicts(cand, kc, m, res, z, tol, margin, z_lo, z_hi, end_pos, n_p, sid, q, fam):
+    """`_verdicts` on `_k_round`'s rows (_ROWS per candidate)."""
+    return _verdicts(cand, kc, m, res, z, tol, margin, z_lo, z_hi, end_pos, n_p, sid, q, fam, _ROWS, np.empty(kc.shape[0], np.bool_))
+
+
+@njit
+def _verdicts(cand, kc, m, res, z, tol, margin, z_lo, z_hi, end_pos, n_p, sid, q, fam, rows, amb_of):
     """Step 2's verdict per candidate piece. A line's score is the larger of the piece's two crossings' residuals
     on its sheet where both land inside [z_lo, z_hi] on consecutive lines of the other family. Of the two lines
     beside the neighbour's line the better must score within tol and the other at least margin·tol (else
@@ -306,12 +315,15 @@ def _k_verdicts(cand, kc, m, res, z, tol, margin, z_lo, z_hi, end_pos, n_p, sid,
     epipolar lines a wrong sheet moves the crossings little), and it must be next to every labelled
     neighbour line, whose sample, on its own sheet, lies in the depth range nearest to one of the two lines of
     the other family that the crossings name (the same cell on both lines). m, res, z: (_ROWS·nc,) in
-    `_k_round`'s row order. Returns k_of (nc,) (_NONE: not accepted), the number ambiguous, and the accepted
-    pieces' samples for step 3: trace positions, owner (candidate rank), q, family, line."""
+    `_k_round`'s row order (rows = _ROWS), or without the rows of the neighbour's own line (rows = _ROWS − 2,
+    `_k_live_round`: they are never read). Returns k_of (nc,) (_NONE: not accepted), the number ambiguous, and
+    the accepted pieces' samples for step 3: trace positions, owner (candidate rank), q, family, line; amb_of
+    (nc,) is set True where the candidate is ambiguous."""
     nc = kc.shape[0]
     k_of = np.full(nc, _NONE, np.int64)
     amb = 0
     tot = 0
+    amb_of[:] = False
     for i in range(nc):
         # each line's score: the larger crossing residual, where both crossings lie in the depth range on
         # consecutive lines of the other family (otherwise the line is out: the depth range decides)
@@ -319,8 +331,10 @@ def _k_verdicts(cand, kc, m, res, z, tol, margin, z_lo, z_hi, end_pos, n_p, sid,
         second = np.inf
         j_ok = 0
         for j in range(_LINES):
-            r = _ROWS * i + 2 * j
-            if j == _SPAN or abs(m[r + 1] - m[r]) != 1:  # the piece is not its neighbour's line
+            if j == _SPAN:  # the piece is not its neighbour's line
+                continue
+            r = rows * i + 2 * j - (2 if rows < _ROWS and j > _SPAN else 0)
+            if abs(m[r + 1] - m[r]) != 1:  # the piece is not its neighbour's line
                 continue
             if not (z[r] >= z_lo and z[r] <= z_hi and z[r + 1] >= z_lo and z[r + 1] <= z_hi):
                 continue
@@ -335,15 +349,16 @@ def _k_verdicts(cand, kc, m, res, z, tol, margin, z_lo, z_hi, end_pos, n_p, sid,
             continue
         if second < margin * tol:  # a rival line nearly as good: ambiguous
             amb += 1
+            amb_of[i] = True
             continue
         k = kc[i, 0] - _SPAN + j_ok
-        r = _ROWS * i + 2 * j_ok
+        r = rows * i + 2 * j_ok - (2 if rows < _ROWS and j_ok > _SPAN else 0)
         ok = True
         for sd in range(2):
             kn = kc[i, 1 + sd]
             if kn == _NONE:
                 continue
-            rn = _ROWS * i + 2 * _LINES + sd
+            rn = rows * i + rows - 2 + sd
             ok = ok and abs(k - kn) == 1 and (m[rn] == m[r] or m[rn] == m[r + 1]) and z[rn] >= z_lo and z[rn] <= z_hi
         if ok:
             k_of[i] = k
@@ -412,20 +427,25 @@ def _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, nb, end_pos, n_p, ts, sid, 
 
 
 @njit
-def _k_live_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, live, n_live, nbs, rect, n_p, anchor, min_samples, reach,
-                  lateral, cross_r, across_r, dirty, first_round, x0, y0, cell, gw, gh, start, items, pos_of):
+def _k_live_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, live, n_live, nbs, rect, seen_kn, seen_amb, n_p, anchor,
+                  min_samples, reach, lateral, cross_r, across_r, dirty, first_round, x0, y0, cell, gw, gh, start, items, pos_of):
     """`_k_round` on the pieces that can still become candidates, with what does not change between rounds kept:
     live[:n_live] (ascending piece ids, compacted in place) are the pieces `_k_round` would look at again
     (why 6 before the first round; afterwards 0 or 4, unlabelled: a piece with no neighbour sample (3), no
     facing piece (1), no crossing (2) or labelled stays as it is); nbs (n_p, 2) each side's neighbour sample
     within across_r (−1: none) and rect (n_p, 4) the cell range of the search, both from the piece's first
     search (the samples and the grid do not change, only the lines of their pieces, val). Same verdicts (why),
-    crossings (cr), candidates and rows as `_k_round`, in the same order. Returns them and the new n_live."""
+    crossings (cr) and candidates as `_k_round`, in the same order, except a candidate whose neighbour lines
+    are those of its last verdict (seen_kn (n_p, 2), _NONE + 1: none yet; the verdict depends on nothing else):
+    left out, its verdict counted again when it was ambiguous (seen_amb). The rows leave out the neighbour's
+    own line (_ROWS − 2 per candidate, `_verdicts`' compact layout: never read). Returns the candidates, kc,
+    nb, the rows, the new n_live and the number of repeated ambiguous verdicts."""
     cand = np.empty(n_live, np.intp)
     kc = np.empty((n_live, 3), np.int64)
     nb = np.empty((n_live, 2), np.intp)
     n_out = 0
     w_live = 0
+    n_amb = 0
     for li in range(n_live):
         p = live[li]
         if first_round:
@@ -458,27 +478,30 @@ def _k_live_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, 
             for cy in range(cy0, cy1 + 1):
                 for cx in range(cx0, cx1 + 1):
                     i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
-                    for it in range(i0, i1):
+                    for it in range(i0, i1):  # `_k_round`'s search, the trace tests after the geometric ones
                         s = items[it]
-                        k = pos_of[s]
-                        if k < 0 or piece[k] == p:
-                            continue
                         dx, dy = q[s, 0] - qx, q[s, 1] - qy
                         if abs(dx * tx + dy * ty) > reach_al:
                             continue
                         ac = dx * ty - dy * tx
                         if ac <= -1.0:
                             if -ac < near0:
-                                near0 = -ac
-                                s0 = s
+                                k = pos_of[s]
+                                if k >= 0 and piece[k] != p:
+                                    near0 = -ac
+                                    s0 = s
                         elif ac >= 1.0 and ac < near1:
-                            near1 = ac
-                            s1 = s
+                            k = pos_of[s]
+                            if k >= 0 and piece[k] != p:
+                                near1 = ac
+                                s1 = s
             if s0 < 0 and s1 < 0:  # no neighbour sample, now or later
                 why[p] = 3
                 continue
             nbs[p, 0] = s0 if near0 <= across_r else -1
             nbs[p, 1] = s1 if near1 <= across_r else -1
+            seen_kn[p, 0] = _NONE + 1  # no verdict yet (a line index is never _NONE + 1)
+            seen_kn[p, 1] = _NONE + 1
         else:
             if labelled[p]:
                 continue  # labelled in the last round: done
@@ -520,6 +543,9 @@ def _k_live_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, 
                 continue
         live[w_live] = p
         w_live += 1
+        if seen_kn[p, 0] == kn0 and seen_kn[p, 1] == kn1:  # the same verdict as last time
+            n_amb += seen_amb[p]
+            continue
         cand[n_out] = p
         kc[n_out, 0] = kn0 if kn0 != _NONE else kn1
         kc[n_out, 1] = kn0
@@ -527,48 +553,64 @@ def _k_live_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, 
         nb[n_out, 0] = nbs[p, 0] if kn0 != _NONE else nbs[p, 1]
         nb[n_out, 1] = nbs[p, 1] if kn1 != _NONE else nbs[p, 0]
         n_out += 1
-    cq = np.empty((_ROWS * n_out, 2))
-    cf = np.empty(_ROWS * n_out, np.intp)
-    ck = np.empty(_ROWS * n_out, np.intp)
+    rows = _ROWS - 2
+    cq = np.empty((rows * n_out, 2))
+    cf = np.empty(rows * n_out, np.intp)
+    ck = np.empty(rows * n_out, np.intp)
     for i in range(n_out):
         p = cand[i]
         f = fam[sid[end_pos[p]]]
+        r = rows * i
         for j in range(_LINES):
-            r = _ROWS * i + 2 * j
+            if j == _SPAN:
+                continue
             for sd in range(2):
                 cq[r + sd, 0] = cr[p, sd, 0]
                 cq[r + sd, 1] = cr[p, sd, 1]
                 cf[r + sd] = f
                 ck[r + sd] = kc[i, 0] - _SPAN + j
+            r += 2
         for sd in range(2):
-            r = _ROWS * i + 2 * _LINES + sd
             s = nb[i, sd]
-            cq[r, 0] = q[s, 0]
-            cq[r, 1] = q[s, 1]
-            cf[r] = f
-            ck[r] = kc[i, 1 + sd] if kc[i, 1 + sd] != _NONE else kc[i, 0]
-    return cand[:n_out], kc[:n_out], nb[:n_out], cq, cf, ck, w_live
+            cq[r + sd, 0] = q[s, 0]
+            cq[r + sd, 1] = q[s, 1]
+            cf[r + sd] = f
+            ck[r + sd] = kc[i, 1 + sd] if kc[i, 1 + sd] != _NONE else kc[i, 0]
+    return cand[:n_out], kc[:n_out], nb[:n_out], cq, cf, ck, w_live, n_amb
 
 
 @njit
 def _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_samples, reach, lateral, cross_r, across_r, tol, margin,
-           z_lo, z_hi, trim_px, rounds, x0, y0, cell, gw, gh, start, items, pos_of, check_args, depth_args):
+           z_lo, z_hi, trim_px, rounds, x0, y0, cell, gw, gh, start, items, pos_of,
+           tab, inv_step, R, t, index_min, nodes, iterations, end_n, end_t, chord_n, chord_t, K_proj, dist, centre, n_other, offsets, inv_dx,
+           guess, K_nl, dist_nl, distorted, cu, cv, n12, offs, hyp, indices):
     """Every round in one call (`_k_pieces`, `_k_live_round`, `_k_sheet_check`, `_k_verdicts`, `_k_sheet_depth`,
-    `_k_write`): `RigModel.sheet_check` and `sheet_depth`'s compiled path with their fixed arguments
-    (check_args: `RigModel._sheet_check_args`; depth_args: its first 18, `_k_sheet_depth`'s). Returns ok,
+    `_k_write`): `RigModel.sheet_check` and `sheet_depth`'s compiled path with their fixed arguments (tab …
+    indices: `RigModel._sheet_check_args`, one by one: numba types a tuple of arrays in Python, ~0.2 ms a
+    call; the first 18 are `_k_sheet_depth`'s). Returns ok,
     pieces, samples, ambiguous and the first round's left-out counts (no facing piece, no crossing, no neighbour,
     neighbour unlabelled). ok False: a pixel lay outside the camera table (the NumPy path's case); index and
     seed_jid are then restored as they were and the caller runs the rounds again through `RigModel`."""
     end_pos, labelled, val = _k_pieces(sid, piece, index, n_p)
     why = np.full(n_p, 6, np.int8)
-    cr = np.zeros((n_p, 2, 2))
-    dirty = np.zeros(gw * gh, np.bool_)
-    live = np.arange(n_p)
-    n_live = n_p
+    live = np.empty(n_p, np.intp)  # the pieces `_k_round` would try: unlabelled, at least min_samples long
+    n_live = 0
+    for p in range(n_p):
+        if labelled[p] or end_pos[n_p + p] - end_pos[p] + 1 < min_samples:
+            why[p] = 5
+        else:
+            live[n_live] = p
+            n_live += 1
+    # per piece, written before read (the crossings once found, the rest at the piece's first search)
+    cr = np.empty((n_p, 2, 2))
     nbs = np.empty((n_p, 2), np.intp)
     rect = np.empty((n_p, 4), np.intp)
-    log_s = np.empty(index.shape[0], np.intp)  # the samples written and their junctions before: undone when not ok
-    log_j = np.empty(index.shape[0], seed_jid.dtype)
+    seen_kn = np.empty((n_p, 2), np.int64)
+    seen_amb = np.empty(n_p, np.int64)
+    dirty = np.zeros(gw * gh, np.bool_)
+    amb_of = np.empty(n_live, np.bool_)
+    log_s = np.empty(256, np.intp)  # the samples written and their junctions before: undone when not ok
+    log_j = np.empty(256, seed_jid.dtype)
     n_log = 0
     n_pieces = 0
     n_samples = 0
@@ -576,9 +618,10 @@ def _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_sa
     left = np.zeros(4, np.int64)
     ok = True
     for r in range(rounds):
-        cand, kc, nb, cq, cf, ck, n_live = _k_live_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, live, n_live, nbs, rect,
-                                                         n_p, anchor, min_samples, reach, lateral, cross_r, across_r, dirty, r == 0,
-                                                         x0, y0, cell, gw, gh, start, items, pos_of)
+        cand, kc, nb, cq, cf, ck, n_live, amb_again = _k_live_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, live, n_live,
+                                                                    nbs, rect, seen_kn, seen_amb, n_p, anchor, min_samples, reach, lateral,
+                                                                    cross_r, across_r, dirty, r == 0, x0, y0, cell, gw, gh, start, items, pos_of)
+        n_amb += amb_again
         if r == 0:
             for p in range(n_p):
                 if why[p] >= 1 and why[p] <= 4:
@@ -589,18 +632,34 @@ def _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_sa
         nr = cq.shape[0]
         p_tmp = np.empty((nr, 3))
         z = np.empty(nr)
-        m, res = _k_sheet_check(cq, cf, ck, *check_args, np.empty((nr, 2)), np.empty(nr, np.bool_), p_tmp, np.empty(nr), z)
+        m, res = _k_sheet_check(cq, cf, ck, tab, inv_step, R, t, index_min, nodes, iterations, end_n, end_t, chord_n, chord_t, K_proj, dist,
+                                centre, n_other, offsets, inv_dx, guess, K_nl, dist_nl, distorted, cu, cv, n12, offs, hyp, indices,
+                                np.empty((nr, 2)), np.empty(nr, np.bool_), p_tmp, np.empty(nr), z)
         if m.shape[0] != nr:
             ok = False
             break
-        k_of, amb, pos, owner, qs, fs, ks = _k_verdicts(cand, kc, m, res, z, tol, margin, z_lo, z_hi, end_pos, n_p, sid, q, fam)
+        k_of, amb, pos, owner, qs, fs, ks = _verdicts(cand, kc, m, res, z, tol, margin, z_lo, z_hi, end_pos, n_p, sid, q, fam, _ROWS - 2,
+                                                      amb_of[:nc])
         n_amb += amb
+        for i in range(nc):
+            seen_kn[cand[i], 0] = kc[i, 1]
+            seen_kn[cand[i], 1] = kc[i, 2]
+            seen_amb[cand[i]] = amb_of[i]
         if pos.shape[0] == 0:
             break
         zs = np.empty(pos.shape[0])
-        if not _k_sheet_depth(qs, fs.astype(np.intp), ks.astype(np.intp), *depth_args, zs):
+        if not _k_sheet_depth(qs, fs.astype(np.intp), ks.astype(np.intp), tab, inv_step, R, t, index_min, nodes, iterations, end_n, end_t,
+                              chord_n, chord_t, K_proj, dist, centre, n_other, offsets, inv_dx, guess, zs):
             ok = False
             break
+        if n_log + pos.shape[0] > log_s.shape[0]:
+            size = 2 * (n_log + pos.shape[0])
+            grown_s = np.empty(size, np.intp)
+            grown_j = np.empty(size, seed_jid.dtype)
+            grown_s[:n_log] = log_s[:n_log]
+            grown_j[:n_log] = log_j[:n_log]
+            log_s = grown_s
+            log_j = grown_j
         for w in range(pos.shape[0]):  # the undo log: every sample an accepted piece may write
             s = sid[pos[w]]
             log_s[n_log] = s
@@ -674,7 +733,7 @@ def label_beside_lines(
         ok, n_pieces, n_samples, n_amb, left = _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, int(anchor), int(min_samples),
                                                       float(reach_px), float(lateral_px), float(mix_sigma * sigma_px), float(across_px),
                                                       float(tol_px), float(margin), z_lo, z_hi, float(trim_px), int(rounds),
-                                                      x0, y0, cell, gw, gh, start, items, pos_of, fixed, fixed[:_DEPTH_ARGS])
+                                                      x0, y0, cell, gw, gh, start, items, pos_of, *fixed)
         if ok:
             stats["pieces"] = int(n_pieces)
             stats["samples"] = int(n_samples)
