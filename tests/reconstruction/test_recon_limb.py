@@ -4,6 +4,7 @@ simulator truth on the small rig's pitch-16 scene (the sphere's limb compresses 
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -11,7 +12,8 @@ import pytest
 
 from reconstruction.extraction import extract_grid
 from reconstruction.labelling import LabelOptions, TraceOptions, _sample_grid, label_epipolar, label_samples
-from reconstruction.limb_lines import _NONE, _ROWS, _crossings, _k_pieces, _k_verdicts
+import reconstruction.labelling as labelling_module
+from reconstruction.limb_lines import _NONE, _ROWS, _by_rounds, _crossings, _k_all, _k_pieces, _k_verdicts, label_beside_lines
 from reconstruction.rigmodel import UNLABELLED, rig_model
 
 from tests.reconstruction.test_recon_surface_labels import _object_at, _true_index
@@ -169,3 +171,82 @@ def test_labels_beside_the_sphere_silhouette_are_true(stage16, keep_object):
     ok = np.isfinite(t)
     assert ok.mean() > 0.95
     assert np.all(np.abs(t[ok] - on.index[new][ok]) < 0.3), np.abs(t[ok] - on.index[new][ok]).max()
+
+
+def _captured_call(stage, keep_object=None):
+    """The arguments label_samples passes to label_beside_lines on the small rig's pitch-16 scene (only one
+    object's junctions labelled when keep_object is given), captured before the call."""
+    s, model, obs, lab, sigma = stage
+    if keep_object is not None:
+        lab = lab.copy()
+        lab[_object_at(s.truth, obs.q_junction) != keep_object] = UNLABELLED
+    got = []
+    real = labelling_module.label_beside_lines
+
+    def capture(*args, **kw):
+        got.append(([a.copy() if isinstance(a, np.ndarray) else a for a in args], dict(kw)))
+        return real(*args, **kw)
+
+    labelling_module.label_beside_lines = capture
+    try:
+        _run((s, model, obs, lab, sigma), True)
+    finally:
+        labelling_module.label_beside_lines = real
+    assert len(got) == 1
+    return got[0]
+
+
+def _call(fn, args, kw, **over):
+    a = list(args)
+    a[6], a[7] = args[6].copy(), args[7].copy()  # index, seed_jid: written in place
+    stats = fn(*a, **{**kw, **over})
+    return stats, a[6], a[7]
+
+
+@pytest.mark.parametrize("keep_object,margin,tol_px", [(None, 2.0, 1.0), (1, 2.0, 1.0), (None, 1.5, 2.0), (1, 4.0, 1.0)])
+def test_one_call_equals_round_by_round(stage16, keep_object, margin, tol_px):
+    """label_beside_lines' compiled path (`_k_all`: every round in one call, the live pieces' searches and
+    verdicts kept between rounds) labels exactly the samples, with exactly the lines, junctions and counts, of
+    the round-by-round path (`_by_rounds`: each round's search over every piece through RigModel). margin 1.5
+    with tol 2 px leaves pieces ambiguous that are looked at again in later rounds with the same neighbour
+    lines (their verdict is kept and counted again: 10 ambiguous verdicts, 7 without the repeats); margin 4
+    leaves most ambiguous."""
+    args, kw = _captured_call(stage16, keep_object)
+    one, index1, jid1 = _call(label_beside_lines, args, kw, margin=margin, tol_px=tol_px)
+    by, index2, jid2 = _call(_by_rounds, args, kw, margin=margin, tol_px=tol_px, rounds=8)
+    assert one == by
+    np.testing.assert_array_equal(index1, index2)
+    np.testing.assert_array_equal(jid1, jid2)
+    if margin < 3.0:
+        assert one["samples"] >= 150, one  # (232–323 measured)
+    else:
+        assert one["ambiguous"] >= 20, one  # (40 measured)
+    assert np.sum(np.isfinite(index1) & ~np.isfinite(args[6])) == one["samples"]
+
+
+def test_outside_the_camera_table_restores_and_falls_back(stage16):
+    """A camera table that covers only the left half of the image: the one-call kernel stops at the first
+    sheet check with a pixel outside it (here in the first round, before anything is written: the undo of
+    later rounds' writes is not reached on this scene), with index and seed_jid as they were, and
+    label_beside_lines then labels exactly as the round-by-round path does (RigModel's NumPy path there)."""
+    args, kw = _captured_call(stage16)
+    model = copy.copy(kw["model"])
+    fixed = model._sheet_check_args
+    tab = fixed[0]
+    model.__dict__["_sheet_check_args"] = (np.ascontiguousarray(tab[:, : tab.shape[1] // 2]),) + tuple(fixed[1:])
+    kw = {**kw, "model": model}
+    index, jid = args[6].copy(), args[7].copy()
+    x0, y0, cell, gw, gh, start, items, pos_of = kw["grid"]
+    piece = args[3]
+    ok, *_ = _k_all(*args[:6], index, jid, int(piece[-1]) + 1, kw["anchor"], kw["min_samples"], float(kw["reach_px"]), float(kw["lateral_px"]),
+                    float(kw["mix_sigma"] * kw["sigma_px"]), float(kw["across_px"]), float(kw["tol_px"]), 2.0, float(kw["depth_range_mm"][0]),
+                    float(kw["depth_range_mm"][1]), float(kw["trim_px"]), 8, x0, y0, cell, gw, gh, start, items, pos_of,
+                    *model._sheet_check_args)
+    assert not ok
+    np.testing.assert_array_equal(index, args[6])
+    np.testing.assert_array_equal(jid, args[7])
+    one, index1, jid1 = _call(label_beside_lines, args, kw)
+    by, index2, jid2 = _call(_by_rounds, args, kw, margin=2.0, rounds=8)
+    assert one == by and one["samples"] >= 150
+    np.testing.assert_array_equal(index1, index2)
+    np.testing.assert_array_equal(jid1, jid2)
