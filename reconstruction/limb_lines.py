@@ -36,10 +36,16 @@ The samples within `trim_px` of P's ends are left out (the crossings' light pull
 filling and the crossing fill put points there where the line is labelled on both sides). Repeated for `rounds`
 rounds: pieces labelled in one round are the neighbour lines of the next (the band is a few lines wide).
 
-Kernels: one pass for the pieces' ends and labels (`_k_pieces`); per round one compiled pass for steps 1 and 2's
-geometry (`_k_round`, on the frame's bucket grid split by family, `labelling._sample_grid`; the crossings once
-per piece, and after the first round only pieces near a newly labelled sample), `RigModel.sheet_check` for the
-crossings and neighbours, `_k_verdicts`, `RigModel.sheet_depth` for step 3 and `_k_write`.
+Kernels: every round in one compiled call (`_k_all`, decision 0103's "speed, round 2"): the pieces' ends and
+labels (`_k_pieces`), then per round steps 1 and 2's geometry on the frame's bucket grid split by family
+(`labelling._sample_grid`) over the pieces that can still become candidates (`_k_live_round`: each piece's
+neighbour samples searched once, its crossings once; after the first round only pieces whose search reaches a
+newly labelled sample, and a candidate's verdict again only when its neighbour lines changed), the crossings
+and neighbours on their sheets (`rigmodel._k_sheet_check`), `_verdicts`, step 3 (`rigmodel._k_sheet_depth`)
+and `_k_write`. Where the rig has no camera table or a pixel lies outside it, `RigModel`'s NumPy path gives the
+sheets: `_by_rounds` then runs the rounds one by one (`_k_round`, `RigModel.sheet_check`, `_k_verdicts`,
+`RigModel.sheet_depth`, `_k_write`), with the same labels. `_k_all` calls kernels of `rigmodel`: after
+changing one of them, clear the numba caches (decision 0095).
 """
 
 from __future__ import annotations
