@@ -60,6 +60,7 @@ class BorderFillOptions:
     max_profile_drop: float = 0.15
     contrast_frac: float = 0.5
     cross_sigma: float = 1.0
+    other_width: float = 1.0
 
 
 _DBG = False
@@ -134,7 +135,8 @@ def fill_border(
     n_ends, ends, anchors, why = _k_border_ends(
         q, fam, idx, np.ascontiguousarray(order, np.intp), ahead, np.ascontiguousarray(qs[nb]), np.ascontiguousarray(fs[nb], np.intp), _grey(image), float(W - 1), float(H - 1), cell,
         float(options.min_gap_cells * cell), float(options.pull_sigma * sigma), int(options.anchor), float(options.lateral_px * cell),
-        float(reach), float(model.line_width_cam_px), float(options.max_profile_drop), float(options.contrast_frac), _DBG)
+        float(reach), float(model.line_width_cam_px), float(options.max_profile_drop), float(options.contrast_frac),
+        float(options.other_width * model.line_width_cam_px), _DBG)
     stats["ends"] = int(n_ends)
     stats["ends_rejected"] = {r: int(why[i]) for i, r in enumerate(_REASONS)}
     stats["ends_rejected"].update(depth_range=0, crossing=0)
@@ -283,7 +285,7 @@ def _exit(ox, oy, ux, uy, xmax, ymax):
 
 @njit
 def _k_border_ends(q, fam, idx, order, ahead, qs, fs, img, xmax, ymax, cell, min_gap, pull, anchor, lateral, reach, width, max_drop,
-                   contrast_frac, dbg=False):
+                   contrast_frac, other_w, dbg=False):
     """Steps 1–4 (image part) of the module doc. Returns the number of ends near the border looked at, per
     accepted end (E, 6) [end sample, ox, oy, ux, uy, L] (o the end sample's foot on the fit, u outward, L
     to the box), and the counts of ends rejected by reason (`_REASONS`)."""
@@ -428,7 +430,7 @@ def _k_border_ends(q, fam, idx, order, ahead, qs, fs, img, xmax, ymax, cell, min
                 ex = qs[i, 0] - ox
                 ey = qs[i, 1] - oy
                 s = ex * ux + ey * uy
-                if s >= -s_end - 0.5 * width and s <= L + 0.5 * width and abs(-ex * uy + ey * ux) <= width:
+                if s >= -s_end - 0.5 * width and s <= L + 0.5 * width and abs(-ex * uy + ey * ux) <= other_w:
                     cont = True
                     break
             if cont:
