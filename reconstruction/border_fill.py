@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from reconstruction._jit import njit
-from reconstruction.crossing_fill import CrossingPoints, _family_directions, _k_order, _sorted_by_key, order_with_appended
+from reconstruction.crossing_fill import CrossingPoints, _family_directions, _k_order, _sorted_by_key
 from reconstruction.rigmodel import RigModel
 
 
@@ -63,7 +63,6 @@ class BorderFillOptions:
     other_width: float = 1.0
 
 
-_DBG = False
 _REASONS = ("anchors", "anchors_crooked", "not_to_border", "too_far", "line_continues", "profile", "contrast", "other_family")
 
 
@@ -72,12 +71,64 @@ def _empty(stats: dict) -> CrossingPoints:
 
 
 def _grey(image: np.ndarray) -> np.ndarray:
+    """The frame as one grey channel, uint8 read as it is (the kernels read it bilinearly)."""
     img = np.asarray(image)
     if img.ndim == 3:
         from reconstruction.extraction import to_grey_float
 
         img = to_grey_float(img)
-    return np.ascontiguousarray(img, np.float32)
+    if img.dtype not in (np.uint8, np.uint16, np.float32):
+        img = img.astype(np.float32)
+    return np.ascontiguousarray(img)
+
+
+@njit
+def _k_border_lines(q, fam, idx, xmax, ymax, lim, kmin, kmax):
+    """The labelled samples (finite index, family 1 or 2) of the lines that have a labelled sample within lim
+    of the image box [0, xmax] × [0, ymax] (ids in q's order), and those near samples themselves."""
+    nk = kmax - kmin + 1
+    mark = np.zeros((2, nk), np.bool_)
+    n = q.shape[0]
+    near = np.empty(n, np.intp)
+    m = 0
+    for i in range(n):
+        k = idx[i]
+        f = fam[i]
+        if not np.isfinite(k) or (f != 1 and f != 2):
+            continue
+        b = min(min(q[i, 0], xmax - q[i, 0]), min(q[i, 1], ymax - q[i, 1]))
+        if b <= lim:
+            ki = int(k) - kmin
+            if ki >= 0 and ki < nk:
+                mark[f - 1, ki] = True
+            near[m] = i
+            m += 1
+    if m == 0:
+        return np.empty(0, np.intp), near[:0]
+    sel = np.empty(n, np.intp)
+    c = 0
+    for i in range(n):
+        k = idx[i]
+        f = fam[i]
+        if not np.isfinite(k) or (f != 1 and f != 2):
+            continue
+        ki = int(k) - kmin
+        if ki >= 0 and ki < nk and mark[f - 1, ki]:
+            sel[c] = i
+            c += 1
+    return sel[:c], near[:m]
+
+
+@njit
+def _k_band(qs, xmax, ymax, lim):
+    """The ids of the points qs within lim of the image box [0, xmax] × [0, ymax]."""
+    out = np.empty(qs.shape[0], np.intp)
+    m = 0
+    for i in range(qs.shape[0]):
+        if min(min(qs[i, 0], xmax - qs[i, 0]), min(qs[i, 1], ymax - qs[i, 1])) <= lim:
+            out[m] = i
+            m += 1
+    return out[:m]
 
 
 def fill_border(
@@ -115,28 +166,25 @@ def fill_border(
     sigma = float(sigma_px)
     cell = float(cell_px)
     reach = options.reach_sigma * sigma + cell
-    # only samples this close to the border can be an end whose extension reaches it
-    band = reach + options.pull_sigma * sigma
-    bd = np.minimum(np.minimum(q[:, 0], W - 1 - q[:, 0]), np.minimum(q[:, 1], H - 1 - q[:, 1]))
-    near = np.isfinite(idx) & (bd <= band)
-    if not near.any():
+    width = float(model.line_width_cam_px)
+    # the labelled samples of the lines that come within reach of the border (an end whose extension reaches
+    # the border lies there, and so does every labelled sample on such an extension)
+    sel, near = _k_border_lines(q, fam, idx, float(W - 1), float(H - 1), float(reach), int(model.index_min), int(model.index_max))
+    if len(near) == 0:
         return _empty(stats)
     if order is None:
         d1, d2 = _family_directions(model)
-        sel, key = _k_order(q, fam, idx, d1, d2)
-        order = _sorted_by_key(sel, key)
+        s_ord, key = _k_order(q[sel], fam[sel], idx[sel], d1, d2)
+        order = sel[_sorted_by_key(s_ord, key)]
     if len(order) < options.anchor + 1:
         return _empty(stats)
-    ahead = np.flatnonzero(near)  # the labelled samples a line-continues test may meet
     qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
-    fs = np.asarray(family_samples).reshape(-1)
-    bds = np.minimum(np.minimum(qs[:, 0], W - 1 - qs[:, 0]), np.minimum(qs[:, 1], H - 1 - qs[:, 1]))
-    nb = bds <= band + model.line_width_cam_px  # the extracted samples an other-family test may meet
+    fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
+    nb = _k_band(qs, float(W - 1), float(H - 1), float(reach + width))  # the extracted samples an other-family test may meet
     n_ends, ends, anchors, why = _k_border_ends(
-        q, fam, idx, np.ascontiguousarray(order, np.intp), ahead, np.ascontiguousarray(qs[nb]), np.ascontiguousarray(fs[nb], np.intp), _grey(image), float(W - 1), float(H - 1), cell,
+        q, fam, idx, np.ascontiguousarray(order, np.intp), near, qs, fs, nb, _grey(image), float(W - 1), float(H - 1), cell,
         float(options.min_gap_cells * cell), float(options.pull_sigma * sigma), int(options.anchor), float(options.lateral_px * cell),
-        float(reach), float(model.line_width_cam_px), float(options.max_profile_drop), float(options.contrast_frac),
-        float(options.other_width * model.line_width_cam_px), _DBG)
+        float(reach), width, float(options.max_profile_drop), float(options.contrast_frac), float(options.other_width * width))
     stats["ends"] = int(n_ends)
     stats["ends_rejected"] = {r: int(why[i]) for i, r in enumerate(_REASONS)}
     stats["ends_rejected"].update(depth_range=0, crossing=0)
@@ -284,8 +332,8 @@ def _exit(ox, oy, ux, uy, xmax, ymax):
 
 
 @njit
-def _k_border_ends(q, fam, idx, order, ahead, qs, fs, img, xmax, ymax, cell, min_gap, pull, anchor, lateral, reach, width, max_drop,
-                   contrast_frac, other_w, dbg=False):
+def _k_border_ends(q, fam, idx, order, ahead, qs, fs, band, img, xmax, ymax, cell, min_gap, pull, anchor, lateral, reach, width, max_drop,
+                   contrast_frac, other_w):
     """Steps 1–4 (image part) of the module doc. Returns the number of ends near the border looked at, per
     accepted end (E, 6) [end sample, ox, oy, ux, uy, L] (o the end sample's foot on the fit, u outward, L
     to the box), and the counts of ends rejected by reason (`_REASONS`)."""
@@ -296,7 +344,7 @@ def _k_border_ends(q, fam, idx, order, ahead, qs, fs, img, xmax, ymax, cell, min
     why = np.zeros(8, np.int64)
     E = 0
     n_ends = 0
-    near_lim = reach + pull
+    near_lim = reach
     brk = np.empty(n + 1, np.bool_)
     brk[0] = True
     brk[n] = True
@@ -404,8 +452,6 @@ def _k_border_ends(q, fam, idx, order, ahead, qs, fs, img, xmax, ymax, cell, min
                 continue
             if s_end + L > reach:
                 why[3] += 1
-                if dbg:
-                    print("too_far", a, q[a, 0], q[a, 1], bd, s_end, L, ux, uy)
                 continue
             # 4. no labelled sample of the family ahead on the extension (within half a line width of it)
             cont = False
@@ -424,7 +470,8 @@ def _k_border_ends(q, fam, idx, order, ahead, qs, fs, img, xmax, ymax, cell, min
                 continue
             # no sample of the other family (labelled or not) near the line from the outer anchor to the border:
             # a crossing there (the crossing fills' business) or a line that pulls the anchors
-            for i in range(qs.shape[0]):
+            for t in range(band.shape[0]):
+                i = band[t]
                 if fs[i] == fam[a]:
                     continue
                 ex = qs[i, 0] - ox
@@ -482,8 +529,7 @@ def with_border(
     """The crossing fills' points `cp` (None: none) followed by `fill_border`'s, computed over the label
     stage's samples (q, family, index, junction: `SampleLabels.q`, the observation's family, `.index`,
     `.junction`) with `cp`'s appended; stats: cp's, with "samples_border_filled" and "border" (the call's
-    own counts). kwargs: `fill_border`'s keywords except order (from `cp.shared` when it was computed from
-    these very arrays)."""
+    own counts). kwargs: `fill_border`'s keywords."""
     fam = np.asarray(family).reshape(-1)
     if cp is not None and len(cp.index):
         q_all = np.concatenate([np.asarray(q, np.float64).reshape(-1, 2), cp.q])
@@ -492,15 +538,7 @@ def with_border(
         j_all = np.concatenate([np.asarray(junction, np.int64), cp.junction])
     else:
         q_all, f_all, k_all, j_all = q, fam, index, junction
-    order = None
-    sh = cp.shared if cp is not None else None
-    if sh is not None and sh.inputs[0] is q and sh.inputs[1] is family and sh.inputs[2] is index and sh.n <= len(q_all):
-        d1, d2 = _family_directions(kwargs["model"])
-        qa = np.ascontiguousarray(q_all, np.float64).reshape(-1, 2)
-        fa = np.ascontiguousarray(np.asarray(f_all).reshape(-1), np.intp)
-        ka = np.ascontiguousarray(k_all, np.float64).reshape(-1)
-        order = sh.order if sh.n == len(qa) else order_with_appended(sh, qa, fa, ka, d1, d2)
-    bp = fill_border(q_all, f_all, k_all, j_all, order=order, **kwargs)
+    bp = fill_border(q_all, f_all, k_all, j_all, **kwargs)
     stats = dict(cp.stats) if cp is not None else {"samples_crossing_filled": 0}
     stats["samples_border_filled"] = bp.stats["samples_border_filled"]
     stats["border"] = bp.stats
