@@ -167,9 +167,10 @@ def fill_border(
     cell = float(cell_px)
     reach = options.reach_sigma * sigma + cell
     width = float(model.line_width_cam_px)
-    # the labelled samples of the lines that come within reach of the border (an end whose extension reaches
-    # the border lies there, and so does every labelled sample on such an extension)
-    sel, near = _k_border_lines(q, fam, idx, float(W - 1), float(H - 1), float(reach), int(model.index_min), int(model.index_max))
+    # the labelled samples of the lines that come within reach (+ a line width) of the border: an end whose
+    # extension reaches the border lies within reach of it, every labelled sample the line-continues test
+    # may meet within reach + half a line width
+    sel, near = _k_border_lines(q, fam, idx, float(W - 1), float(H - 1), float(reach + width), int(model.index_min), int(model.index_max))
     if len(near) == 0:
         return _empty(stats)
     if order is None:
@@ -180,7 +181,9 @@ def fill_border(
         return _empty(stats)
     qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
     fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
-    nb = _k_band(qs, float(W - 1), float(H - 1), float(reach + width))  # the extracted samples an other-family test may meet
+    # the extracted samples the other-family test may meet (within 1.12 line widths of the stretch from the
+    # outer anchor, which lies within reach of the border, to the border)
+    nb = _k_band(qs, float(W - 1), float(H - 1), float(reach + 1.5 * width))
     n_ends, ends, anchors, why = _k_border_ends(
         q, fam, idx, np.ascontiguousarray(order, np.intp), near, qs, fs, nb, _grey(image), float(W - 1), float(H - 1), cell,
         float(options.min_gap_cells * cell), float(options.pull_sigma * sigma), int(options.anchor), float(options.lateral_px * cell),
