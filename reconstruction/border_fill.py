@@ -83,40 +83,37 @@ def _grey(image: np.ndarray) -> np.ndarray:
 
 
 @njit
-def _k_border_lines(q, fam, idx, xmax, ymax, lim, kmin, kmax):
-    """The labelled samples (finite index, family 1 or 2) of the lines that have a labelled sample within lim
-    of the image box [0, xmax] × [0, ymax] (ids in q's order), and those near samples themselves."""
-    nk = kmax - kmin + 1
-    mark = np.zeros((2, nk), np.bool_)
-    n = q.shape[0]
-    near = np.empty(n, np.intp)
-    m = 0
-    for i in range(n):
+def _k_mark_lines(q, fam, idx, xmax, ymax, lim, kmin, mark):
+    """Marks in mark (2, K) the lines (family − 1, index − kmin) of the labelled samples (finite index,
+    family 1 or 2) within lim of the image box [0, xmax] × [0, ymax]."""
+    nk = mark.shape[1]
+    for i in range(q.shape[0]):
         k = idx[i]
         f = fam[i]
         if not np.isfinite(k) or (f != 1 and f != 2):
             continue
-        b = min(min(q[i, 0], xmax - q[i, 0]), min(q[i, 1], ymax - q[i, 1]))
-        if b <= lim:
+        if min(min(q[i, 0], xmax - q[i, 0]), min(q[i, 1], ymax - q[i, 1])) <= lim:
             ki = int(k) - kmin
             if ki >= 0 and ki < nk:
                 mark[f - 1, ki] = True
-            near[m] = i
-            m += 1
-    if m == 0:
-        return np.empty(0, np.intp), near[:0]
-    sel = np.empty(n, np.intp)
+
+
+@njit
+def _k_select_lines(fam, idx, kmin, mark):
+    """The ids of the labelled samples of the marked lines (`_k_mark_lines`)."""
+    nk = mark.shape[1]
+    out = np.empty(idx.shape[0], np.intp)
     c = 0
-    for i in range(n):
+    for i in range(idx.shape[0]):
         k = idx[i]
         f = fam[i]
         if not np.isfinite(k) or (f != 1 and f != 2):
             continue
         ki = int(k) - kmin
         if ki >= 0 and ki < nk and mark[f - 1, ki]:
-            sel[c] = i
+            out[c] = i
             c += 1
-    return sel[:c], near[:m]
+    return out[:c]
 
 
 @njit
@@ -145,23 +142,26 @@ def fill_border(
     cell_px: float,
     depth_range_mm: tuple[float, float],
     options: BorderFillOptions = BorderFillOptions(),
-    order: np.ndarray | None = None,
 ) -> CrossingPoints:
     """Points from labelled lines' ends up to the image border (module doc).
 
     q (P, 2), family (P,), index (P,) (NaN: unlabelled), junction (P,): the labelled samples (the label
     stage's, with the crossing fills' points appended), camera px. image (H, W) or (H, W, 3): the frame.
     q_samples (S, 2), family_samples (S,): every extracted sample (the other family's lines near the end).
-    sigma_px: the extraction's smoothing; cell_px: its sampling step. order: the labelled samples of q in
-    order along their lines (`crossing_fill._k_order` + `_sorted_by_key`) when the caller has it. Returns
-    the added samples (`CrossingPoints`, junction: that of the end sample); stats: ends near the border
-    looked at, filled, rejected by reason, samples added."""
+    sigma_px: the extraction's smoothing; cell_px: its sampling step. Returns the added samples
+    (`CrossingPoints`, junction: that of the end sample); stats: ends near the border looked at, filled,
+    rejected by reason, samples added."""
+    return _fill_parts(((q, family, index, junction),), image=image, q_samples=q_samples, family_samples=family_samples, model=model,
+                       sigma_px=sigma_px, cell_px=cell_px, depth_range_mm=depth_range_mm, options=options)
+
+
+def _fill_parts(parts, *, image, q_samples, family_samples, model, sigma_px, cell_px, depth_range_mm, options) -> CrossingPoints:
+    """`fill_border` over the labelled samples given in parts ((q, family, index, junction), ...), taken as
+    one array in that order, without concatenating them: only the samples of the lines that come near the
+    border are gathered."""
     stats: dict = {"ends": 0, "ends_filled": 0, "samples_border_filled": 0, "ends_rejected": {}}
     if not options.enabled:
         return _empty(stats)
-    q = np.ascontiguousarray(q, np.float64).reshape(-1, 2)
-    fam = np.ascontiguousarray(np.asarray(family).reshape(-1), np.intp)
-    idx = np.ascontiguousarray(index, np.float64).reshape(-1)
     H, W = np.shape(image)[:2]
     sigma = float(sigma_px)
     cell = float(cell_px)
@@ -170,13 +170,28 @@ def fill_border(
     # the labelled samples of the lines that come within reach (+ a line width) of the border: an end whose
     # extension reaches the border lies within reach of it, every labelled sample the line-continues test
     # may meet within reach + half a line width
-    sel, near = _k_border_lines(q, fam, idx, float(W - 1), float(H - 1), float(reach + width), int(model.index_min), int(model.index_max))
-    if len(near) == 0:
+    lim = float(reach + width)
+    kmin = int(model.index_min)
+    mark = np.zeros((2, int(model.index_max) - kmin + 1), np.bool_)
+    arrs = []
+    for qp, fp, kp, jp in parts:
+        qp = np.ascontiguousarray(qp, np.float64).reshape(-1, 2)
+        fp = np.ascontiguousarray(np.asarray(fp).reshape(-1))
+        kp = np.ascontiguousarray(kp, np.float64).reshape(-1)
+        arrs.append((qp, fp, kp, jp))
+        _k_mark_lines(qp, fp, kp, float(W - 1), float(H - 1), lim, kmin, mark)
+    if not mark.any():
         return _empty(stats)
-    if order is None:
-        d1, d2 = _family_directions(model)
-        s_ord, key = _k_order(q[sel], fam[sel], idx[sel], d1, d2)
-        order = sel[_sorted_by_key(s_ord, key)]
+    sels = [_k_select_lines(fp, kp, kmin, mark) for _qp, fp, kp, _jp in arrs]
+    q = np.concatenate([qp[s_] for (qp, _f, _k, _j), s_ in zip(arrs, sels)])
+    fam = np.concatenate([fp[s_].astype(np.intp) for (_q, fp, _k, _j), s_ in zip(arrs, sels)])
+    idx = np.concatenate([kp[s_] for (_q, _f, kp, _j), s_ in zip(arrs, sels)])
+    junction = np.concatenate([np.asarray(jp).reshape(-1)[s_].astype(np.int64) for (_q, _f, _k, jp), s_ in zip(arrs, sels)])
+    bd = np.minimum(np.minimum(q[:, 0], W - 1 - q[:, 0]), np.minimum(q[:, 1], H - 1 - q[:, 1]))
+    near = np.flatnonzero(bd <= lim)
+    d1, d2 = _family_directions(model)
+    s_ord, key = _k_order(q, fam, idx, d1, d2)
+    order = _sorted_by_key(s_ord, key)
     if len(order) < options.anchor + 1:
         return _empty(stats)
     qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
@@ -217,7 +232,7 @@ def fill_border(
         return _empty(stats)
     a = a[m]
     stats["samples_border_filled"] = int(m.sum())
-    return CrossingPoints(q_new[m], fam[a], idx[a], np.asarray(junction, np.int64).reshape(-1)[a], stats)
+    return CrossingPoints(q_new[m], fam[a], idx[a], junction[a], stats)
 
 
 @njit
@@ -294,32 +309,6 @@ def _profile(img, x, y, nx, ny, w, xmax, ymax):
 
 
 @njit
-def _centre_offset(img, x, y, nx, ny, w, xmax, ymax):
-    """Where the line's light lies across it at (x, y): the centroid, along the normal (nx, ny), of the
-    box-filtered image above its smaller value at ±w over offsets −w/2 … w/2 (1 px apart) (camera px from
-    (x, y)); NaN when a probe falls outside the box [0, xmax] × [0, ymax]."""
-    lo = 1e30
-    for d in (-1.0, 1.0):
-        px = x + d * w * nx
-        py = y + d * w * ny
-        if px < 0.0 or px > xmax or py < 0.0 or py > ymax:
-            return np.nan
-        lo = min(lo, _box(img, px, py))
-    m = int(math.floor(0.5 * w))
-    sw = 0.0
-    sd = 0.0
-    for i in range(-m, m + 1):
-        px = x + i * nx
-        py = y + i * ny
-        if px < 0.0 or px > xmax or py < 0.0 or py > ymax:
-            return np.nan
-        v = max(_box(img, px, py) - lo, 0.0)
-        sw += v
-        sd += v * i
-    return sd / sw if sw > 0.0 else np.nan
-
-
-@njit
 def _exit(ox, oy, ux, uy, xmax, ymax):
     """Distance along o + s·u (s > 0) to where the ray leaves the box [0, xmax] × [0, ymax]."""
     s = np.inf
@@ -341,8 +330,9 @@ def _k_border_ends(q, fam, idx, order, ahead, qs, fs, band, img, xmax, ymax, cel
     accepted end (E, 6) [end sample, ox, oy, ux, uy, L] (o the end sample's foot on the fit, u outward, L
     to the box), and the counts of ends rejected by reason (`_REASONS`)."""
     n = order.shape[0]
-    ends = np.empty((2 * n, 7))
-    anchors = np.empty((2 * n, anchor), np.intp)
+    cap = 2 * ahead.shape[0]  # every end lies within reach of the border: one of the `ahead` samples
+    ends = np.empty((cap, 6))
+    anchors = np.empty((cap, anchor), np.intp)
     ids = np.empty(anchor, np.intp)
     why = np.zeros(8, np.int64)
     E = 0
@@ -493,13 +483,9 @@ def _k_border_ends(q, fam, idx, order, ahead, qs, fs, band, img, xmax, ymax, cel
             c_run = np.median(cs)
             m = max(int(round(L / cell)), 1)
             bad = 0
-            off = 0.0
             for i in range(1, m + 1):
                 s = i * L / m
                 d, c = _profile(img, ox + s * ux, oy + s * uy, -uy, ux, width, xmax, ymax)
-                co = _centre_offset(img, ox + s * ux, oy + s * uy, -uy, ux, width, xmax, ymax)
-                if np.isfinite(co) and abs(co) > abs(off):
-                    off = co
                 if d > max_drop:
                     bad = 1
                     break
@@ -515,7 +501,6 @@ def _k_border_ends(q, fam, idx, order, ahead, qs, fs, band, img, xmax, ymax, cel
             ends[E, 3] = ux
             ends[E, 4] = uy
             ends[E, 5] = L
-            ends[E, 6] = off
             anchors[E] = ids
             E += 1
     return n_ends, ends[:E], anchors[:E], why
@@ -533,15 +518,10 @@ def with_border(
     stage's samples (q, family, index, junction: `SampleLabels.q`, the observation's family, `.index`,
     `.junction`) with `cp`'s appended; stats: cp's, with "samples_border_filled" and "border" (the call's
     own counts). kwargs: `fill_border`'s keywords."""
-    fam = np.asarray(family).reshape(-1)
+    parts = [(q, family, index, junction)]
     if cp is not None and len(cp.index):
-        q_all = np.concatenate([np.asarray(q, np.float64).reshape(-1, 2), cp.q])
-        f_all = np.concatenate([fam.astype(np.intp), cp.family.astype(np.intp)])
-        k_all = np.concatenate([np.asarray(index, np.float64), cp.index])
-        j_all = np.concatenate([np.asarray(junction, np.int64), cp.junction])
-    else:
-        q_all, f_all, k_all, j_all = q, fam, index, junction
-    bp = fill_border(q_all, f_all, k_all, j_all, **kwargs)
+        parts.append((cp.q, cp.family, cp.index, cp.junction))
+    bp = _fill_parts(tuple(parts), **kwargs)
     stats = dict(cp.stats) if cp is not None else {"samples_crossing_filled": 0}
     stats["samples_border_filled"] = bp.stats["samples_border_filled"]
     stats["border"] = bp.stats
