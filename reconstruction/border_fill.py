@@ -155,7 +155,8 @@ def fill_border(
                        sigma_px=sigma_px, cell_px=cell_px, depth_range_mm=depth_range_mm, options=options)
 
 
-def _fill_parts(parts, *, image, q_samples, family_samples, model, sigma_px, cell_px, depth_range_mm, options) -> CrossingPoints:
+def _fill_parts(parts, *, image, q_samples, family_samples, model, sigma_px, cell_px, depth_range_mm,
+                options: BorderFillOptions = BorderFillOptions()) -> CrossingPoints:
     """`fill_border` over the labelled samples given in parts ((q, family, index, junction), ...), taken as
     one array in that order, without concatenating them: only the samples of the lines that come near the
     border are gathered."""
