@@ -20,9 +20,12 @@ V, so within ~1–2 σ of the border the ridge is biased or rejected and the lab
    test, decision 0050: drop ≤ `max_profile_drop`, the probes that leave the image left out) whose
    contrast is at least `contrast_frac` of the anchors' own; no labelled sample of the family lies ahead
    on the extension (the image's line continues there with another label: a depth edge; or with its own: a
-   gap, the crossing fills' business); on light sheet k every new point lies inside the depth range and
-   farther than `cross_sigma`·σ + half a line width (camera px) from every line of the other family (no
-   crossing on the extension, `RigModel.sheet_check`). One failing point rejects the whole end.
+   gap, the crossing fills' business); no extracted sample of the other family (labelled or not) within
+   `other_width` line widths of the stretch from the outer anchor to the border (a crossing there is the
+   crossing fills' business, and a line next to the anchors pulls the fit); on light sheet k every new
+   point lies inside the depth range, and every new point and anchor farther than `cross_sigma`·σ + half a
+   line width (camera px) from every line of the other family (no predicted crossing there,
+   `RigModel.sheet_check`). One failing test rejects the whole end.
 5. Each new point is, like every line sample, the camera ray ∩ light sheet k (`pipeline._k_frame_points`).
 
 The paper labeller's output is left alone (the pipeline calls this only for the default labeller).
@@ -48,8 +51,10 @@ class BorderFillOptions:
     step). reach_sigma: the extrapolation from the outermost anchor to the border is at most this many σ
     plus one sampling step. max_profile_drop: the profile test at each new point (as
     `TraceOptions.max_profile_drop`); contrast_frac: each new point's ridge contrast is at least this share
-    of the anchors' median. cross_sigma: on light sheet k each new point is farther than this many σ plus
-    half a line width from every line of the other family (camera px)."""
+    of the anchors' median. cross_sigma: on light sheet k each new point and each anchor is farther than this
+    many σ plus half a line width from every line of the other family (camera px). other_width: no extracted
+    sample of the other family within this many line widths of the stretch from the outer anchor to the
+    border (0: the test off)."""
 
     enabled: bool = True
     min_gap_cells: float = 1.6
