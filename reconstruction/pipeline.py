@@ -26,8 +26,8 @@ import numpy as np
 
 from calibration.errors import ReconstructionError
 from calibration.models import ProCam
-from reconstruction.crossing_fill import CrossingFillOptions, CrossingPoints, fill_crossings
 from reconstruction.border_fill import BorderFillOptions, with_border
+from reconstruction.crossing_fill import CrossingFillOptions, CrossingPoints, fill_crossings
 from reconstruction.crossing_fill_one_sided import OneSidedFillOptions, with_one_sided
 from reconstruction.extraction import ExtractOptions, GridObservation, extract_grid, sigma_for
 from reconstruction.geometry import triangulate_rays
