@@ -26,6 +26,7 @@ import numpy as np
 
 from calibration.errors import ReconstructionError
 from calibration.models import ProCam
+from reconstruction.border_fill import BorderFillOptions, with_border
 from reconstruction.crossing_fill import CrossingFillOptions, CrossingPoints, fill_crossings
 from reconstruction.crossing_fill_one_sided import OneSidedFillOptions, with_one_sided
 from reconstruction.extraction import ExtractOptions, GridObservation, extract_grid, sigma_for
@@ -55,6 +56,7 @@ class ReconstructOptions:
     trace: TraceOptions = TraceOptions()
     crossing: CrossingFillOptions = CrossingFillOptions()
     one_sided: OneSidedFillOptions = OneSidedFillOptions()  # decision 0099: a labelled end to its crossing (with `crossing` on)
+    border: BorderFillOptions = BorderFillOptions()  # decision 0104: a labelled end to the image border (with `crossing` on)
 
     def __post_init__(self) -> None:
         if self.labeller not in ("epipolar", "paper"):
@@ -200,6 +202,12 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
                             q_junction=obs.q_junction, junction_labels=lab.labels, model=model, sigma_px=sigma,
                             cell_px=float(max(1, int(obs.stats.get("scale", 1)))),
                             depth_range_mm=(options.depth_min_mm, options.depth_max_mm), options=options.one_sided)
+    if cp is not None and options.border.enabled:
+        # points from a labelled line's end up to the image border (decision 0104)
+        cp = with_border(cp, sl.q, obs.family, sl.index, sl.junction, image=image, q_samples=obs.q, family_samples=obs.family,
+                         model=model, sigma_px=sigma,
+                         cell_px=float(max(1, int(obs.stats.get("scale", 1)))),
+                         depth_range_mm=(options.depth_min_mm, options.depth_max_mm), options=options.border)
     t_label = time.perf_counter()
     result = _triangulate(image, obs, lab, sl, model, xy_cam_j, options, cp)
     t_tri = time.perf_counter()
@@ -296,6 +304,7 @@ def _triangulate(
         "samples_beside_lines": int(sample_stats.get("samples_beside_lines", 0)),
         "samples_crossing_filled": int(cp.stats["samples_crossing_filled"]) if cp is not None else 0,
         "samples_one_sided_filled": int(cp.stats.get("samples_one_sided_filled", 0)) if cp is not None else 0,
+        "samples_border_filled": int(cp.stats.get("samples_border_filled", 0)) if cp is not None else 0,
         "traces_conflicting": int(sample_stats.get("traces_conflicting", 0)),
         "components_split": int(lab.stats.get("components_split", 0)),
     }
