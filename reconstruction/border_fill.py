@@ -40,6 +40,7 @@ import numpy as np
 
 from reconstruction._jit import njit
 from reconstruction.crossing_fill import CrossingPoints, _family_directions, _k_order, _sorted_by_key
+from reconstruction.crossing_fill_one_sided import _k_run_breaks
 from reconstruction.rigmodel import RigModel
 
 
@@ -344,15 +345,7 @@ def _k_border_ends(q, fam, idx, order, ahead, qs, fs, band, img, xmax, ymax, cel
     E = 0
     n_ends = 0
     near_lim = reach
-    brk = np.empty(n + 1, np.bool_)
-    brk[0] = True
-    brk[n] = True
-    for p in range(1, n):
-        a = order[p - 1]
-        b = order[p]
-        dx = q[b, 0] - q[a, 0]
-        dy = q[b, 1] - q[a, 1]
-        brk[p] = fam[b] != fam[a] or idx[b] != idx[a] or dx * dx + dy * dy > min_gap * min_gap
+    brk = _k_run_breaks(q, fam, idx, order, min_gap)  # the runs' ends, as the one-sided fill's
     xs = np.empty(anchor)
     ys = np.empty(anchor)
     for p in range(n):

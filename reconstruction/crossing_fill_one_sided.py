@@ -298,6 +298,23 @@ def _beyond(ox, oy, ux, uy, s_c, reach, width, f, k, qs, ks, x0, y0, gcell, gw, 
 
 
 @njit
+def _k_run_breaks(q, fam, idx, order, min_gap):
+    """(n + 1,) bool: brk[p] where the runs of `order` break between its samples p − 1 and p (another line, or
+    farther apart than min_gap), both ends of the order included. Also the border fill's (decision 0104)."""
+    n = order.shape[0]
+    brk = np.empty(n + 1, np.bool_)
+    brk[0] = True
+    brk[n] = True
+    for p in range(1, n):
+        a = order[p - 1]
+        b = order[p]
+        dx = q[b, 0] - q[a, 0]
+        dy = q[b, 1] - q[a, 1]
+        brk[p] = fam[b] != fam[a] or idx[b] != idx[a] or dx * dx + dy * dy > min_gap * min_gap
+    return brk
+
+
+@njit
 def _k_ends(q, fam, idx, order, qj, lab, qs, ks, jx0, jy0, jgw, jgh, jstart, jitems, sx0, sy0, sgw, sgh, sstart, smid, sitems, gcell,
             cell, sigma, min_gap, gap_max, half_gap, anchor, sin_min, lateral, through, check_beyond, width, beyond_same, pull):
     """Steps 1–3 of the module doc. Returns the number of ends looked at, per end that passed the fit (E, 6)
@@ -320,17 +337,8 @@ def _k_ends(q, fam, idx, order, qj, lab, qs, ks, jx0, jy0, jgw, jgh, jstart, jit
     E = 0
     n_ends = 0
     hits = np.empty(sitems.shape[0], np.intp)
-    # 1. the breaks between consecutive samples of the order (another line, or farther than min_gap): brk[p]
-    # between p − 1 and p, both ends of the order included
-    brk = np.empty(n + 1, np.bool_)
-    brk[0] = True
-    brk[n] = True
-    for p in range(1, n):
-        a = order[p - 1]
-        b = order[p]
-        dx = q[b, 0] - q[a, 0]
-        dy = q[b, 1] - q[a, 1]
-        brk[p] = fam[b] != fam[a] or idx[b] != idx[a] or dx * dx + dy * dy > min_gap * min_gap
+    # 1. the breaks between consecutive samples of the order (another line, or farther than min_gap)
+    brk = _k_run_breaks(q, fam, idx, order, min_gap)
     for p in range(n):
         if not (brk[p] or brk[p + 1]):
             continue
