@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from reconstruction._jit import njit
-from reconstruction.crossing_fill import CrossingPoints, _family_directions, _k_order, _sorted_by_key
+from reconstruction.crossing_fill import CrossingPoints, _family_directions, _fit_across, _k_order, _sorted_by_key, appended
 from reconstruction.crossing_fill_one_sided import _k_run_breaks
 from reconstruction.rigmodel import RigModel
 
@@ -348,6 +348,8 @@ def _k_border_ends(q, fam, idx, order, ahead, qs, fs, band, img, xmax, ymax, cel
     brk = _k_run_breaks(q, fam, idx, order, min_gap)  # the runs' ends, as the one-sided fill's
     xs = np.empty(anchor)
     ys = np.empty(anchor)
+    fit_x = np.empty(anchor)
+    fit_y = np.empty(anchor)
     for p in range(n):
         for side in range(2):
             step = 1 if side == 0 else -1  # 0: the run's forward end, 1: its backward end
@@ -391,34 +393,11 @@ def _k_border_ends(q, fam, idx, order, ahead, qs, fs, band, img, xmax, ymax, cel
                 continue
             ux0 /= l0
             uy0 /= l0
-            sm = 0.0
-            rm = 0.0
             for k in range(anchor):
-                ex = xs[k] - xs[0]
-                ey = ys[k] - ys[0]
-                sm += ex * ux0 + ey * uy0
-                rm += -ex * uy0 + ey * ux0
-            sm /= anchor
-            rm /= anchor
-            sxx = 0.0
-            sxr = 0.0
-            for k in range(anchor):
-                ex = xs[k] - xs[0]
-                ey = ys[k] - ys[0]
-                ds = ex * ux0 + ey * uy0 - sm
-                sxx += ds * ds
-                sxr += ds * (-ex * uy0 + ey * ux0 - rm)
-            if not sxx > 0.0:
-                why[1] += 1
-                continue
-            kk = sxr / sxx
-            cc = rm - kk * sm
-            for k in range(anchor):
-                ex = xs[k] - xs[0]
-                ey = ys[k] - ys[0]
-                if abs(-ex * uy0 + ey * ux0 - (kk * (ex * ux0 + ey * uy0) + cc)) > lateral:
-                    ok = False
-            if not ok:
+                fit_x[k] = xs[k] - xs[0]
+                fit_y[k] = ys[k] - ys[0]
+            kk, cc, status = _fit_across(fit_x, fit_y, anchor, ux0, uy0, lateral)  # step 11's fit
+            if status != 0:
                 why[1] += 1
                 continue
             un = math.sqrt(1.0 + kk * kk)
@@ -521,10 +500,4 @@ def with_border(
     if cp is not None and len(cp.index):
         parts.append((cp.q, cp.family, cp.index, cp.junction))
     bp = _fill_parts(tuple(parts), **kwargs)
-    stats = dict(cp.stats) if cp is not None else {"samples_crossing_filled": 0}
-    stats["samples_border_filled"] = bp.stats["samples_border_filled"]
-    stats["border"] = bp.stats
-    if cp is None or len(cp.index) == 0:
-        return CrossingPoints(bp.q, bp.family, bp.index, bp.junction, stats, cp.shared if cp is not None else None)
-    return CrossingPoints(np.concatenate([cp.q, bp.q]), np.concatenate([cp.family, bp.family.astype(cp.family.dtype)]),
-                          np.concatenate([cp.index, bp.index]), np.concatenate([cp.junction, bp.junction]), stats, cp.shared)
+    return appended(cp, bp, "samples_border_filled", "border", cp.shared if cp is not None else None)

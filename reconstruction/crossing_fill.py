@@ -419,6 +419,48 @@ def _k_unpack_keys(srt, sel, key, b):
     return order, ok, key_sorted
 
 
+def appended(cp: CrossingPoints | None, new: CrossingPoints, count_key: str, stats_key: str,
+             shared: FillShared | None = None) -> CrossingPoints:
+    """The points `cp` (None: none) followed by a later fill's `new` ones (decisions 0099, 0104): stats are cp's,
+    with new.stats[count_key] under count_key and all of new.stats under stats_key; `shared` is kept with them."""
+    stats = dict(cp.stats) if cp is not None else {"samples_crossing_filled": 0}
+    stats[count_key] = new.stats[count_key]
+    stats[stats_key] = new.stats
+    if cp is None or len(cp.index) == 0:
+        return CrossingPoints(new.q, new.family, new.index, new.junction, stats, shared)
+    return CrossingPoints(np.concatenate([cp.q, new.q]), np.concatenate([cp.family, new.family.astype(cp.family.dtype)]),
+                          np.concatenate([cp.index, new.index]), np.concatenate([cp.junction, new.junction]), stats, shared)
+
+
+@njit
+def _fit_across(ex, ey, n, ux, uy, lateral):
+    """The straight-line fit of the fills' anchors (steps 11–13): n points given by their offsets (ex, ey) from a
+    common origin, in the frame of the unit direction u: the across offset r = −ex·uy + ey·ux regressed on the
+    along offset s = ex·ux + ey·uy, r ≈ k·s + c. Returns (k, c, status): 0 fitted and every point within lateral
+    of the line, 1 degenerate (every s alike), 2 a point farther than lateral from it."""
+    sm = 0.0
+    rm = 0.0
+    for k in range(n):
+        sm += ex[k] * ux + ey[k] * uy
+        rm += -ex[k] * uy + ey[k] * ux
+    sm /= n
+    rm /= n
+    sxx = 0.0
+    sxr = 0.0
+    for k in range(n):
+        ds = ex[k] * ux + ey[k] * uy - sm
+        sxx += ds * ds
+        sxr += ds * (-ex[k] * uy + ey[k] * ux - rm)
+    if not sxx > 0.0:
+        return 0.0, 0.0, 1
+    kk = sxr / sxx
+    cc = rm - kk * sm
+    for k in range(n):
+        if abs(-ex[k] * uy + ey[k] * ux - (kk * (ex[k] * ux + ey[k] * uy) + cc)) > lateral:
+            return kk, cc, 2
+    return kk, cc, 0
+
+
 @njit
 def _k_points(q, fam, idx, junction, gaps, acc, cell):
     """Step 4: points one sampling step apart strictly inside each accepted gap, on the blend of its two
@@ -480,6 +522,8 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
     G = 0
     n_gaps = 0
     hits = np.empty(sitems.shape[0], np.intp)  # the other family's samples in the disc, in search order
+    fit_x = np.empty(anchor)
+    fit_y = np.empty(anchor)
     for p in range(n - 1):
         a = order[p]
         b = order[p + 1]
@@ -514,42 +558,20 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
         kb = 0.0
         cb = 0.0
         for side in range(2):
-            sm = 0.0
-            rm = 0.0
             for k in range(anchor):
                 sid = order[p - k] if side == 0 else order[p + 1 + k]
-                ex = q[sid, 0] - q[a, 0]
-                ey = q[sid, 1] - q[a, 1]
-                sm += ex * ux + ey * uy
-                rm += -ex * uy + ey * ux
-            sm /= anchor
-            rm /= anchor
-            sxx = 0.0
-            sxr = 0.0
-            for k in range(anchor):
-                sid = order[p - k] if side == 0 else order[p + 1 + k]
-                ex = q[sid, 0] - q[a, 0]
-                ey = q[sid, 1] - q[a, 1]
-                ds = ex * ux + ey * uy - sm
-                sxx += ds * ds
-                sxr += ds * (-ex * uy + ey * ux - rm)
-            if not sxx > 0.0:
+                fit_x[k] = q[sid, 0] - q[a, 0]
+                fit_y[k] = q[sid, 1] - q[a, 1]
+            kk, cc, status = _fit_across(fit_x, fit_y, anchor, ux, uy, lateral)
+            if status != 0:
                 ok = False
                 break
-            kk = sxr / sxx
-            cc = rm - kk * sm
             if side == 0:
                 ka = kk
                 ca = cc
             else:
                 kb = kk
                 cb = cc
-            for k in range(anchor):
-                sid = order[p - k] if side == 0 else order[p + 1 + k]
-                ex = q[sid, 0] - q[a, 0]
-                ey = q[sid, 1] - q[a, 1]
-                if abs(-ex * uy + ey * ux - (kk * (ex * ux + ey * uy) + cc)) > lateral:
-                    ok = False
         if not ok:
             why[2] += 1
             continue

@@ -42,8 +42,8 @@ import numpy as np
 
 from reconstruction._jit import njit
 from reconstruction.continuation import crossing_gap_px
-from reconstruction.crossing_fill import (CrossingPoints, FillShared, _family_directions, _k_grids, _k_order, _other_run,
-                                          _run_axis, _sorted_by_key, grid_cell_px, order_with_appended)
+from reconstruction.crossing_fill import (CrossingPoints, FillShared, _family_directions, _fit_across, _k_grids, _k_order, _other_run,
+                                          _run_axis, _sorted_by_key, appended, grid_cell_px, order_with_appended)
 from reconstruction.rigmodel import UNLABELLED, RigModel
 
 
@@ -337,6 +337,8 @@ def _k_ends(q, fam, idx, order, qj, lab, qs, ks, jx0, jy0, jgw, jgh, jstart, jit
     E = 0
     n_ends = 0
     hits = np.empty(sitems.shape[0], np.intp)
+    fit_x = np.empty(anchor)
+    fit_y = np.empty(anchor)
     # 1. the breaks between consecutive samples of the order (another line, or farther than min_gap)
     brk = _k_run_breaks(q, fam, idx, order, min_gap)
     for p in range(n):
@@ -400,37 +402,12 @@ def _k_ends(q, fam, idx, order, qj, lab, qs, ks, jx0, jy0, jgw, jgh, jstart, jit
                 continue
             ux0 /= l0
             uy0 /= l0
-            sm = 0.0
-            rm = 0.0
             for k in range(anchor):
                 sid = order[p1 - step * k]
-                ex = q[sid, 0] - q[a, 0]
-                ey = q[sid, 1] - q[a, 1]
-                sm += ex * ux0 + ey * uy0
-                rm += -ex * uy0 + ey * ux0
-            sm /= anchor
-            rm /= anchor
-            sxx = 0.0
-            sxr = 0.0
-            for k in range(anchor):
-                sid = order[p1 - step * k]
-                ex = q[sid, 0] - q[a, 0]
-                ey = q[sid, 1] - q[a, 1]
-                ds = ex * ux0 + ey * uy0 - sm
-                sxx += ds * ds
-                sxr += ds * (-ex * uy0 + ey * ux0 - rm)
-            if not sxx > 0.0:
-                why[1] += 1
-                continue
-            kk = sxr / sxx
-            cc = rm - kk * sm
-            for k in range(anchor):
-                sid = order[p1 - step * k]
-                ex = q[sid, 0] - q[a, 0]
-                ey = q[sid, 1] - q[a, 1]
-                if abs(-ex * uy0 + ey * ux0 - (kk * (ex * ux0 + ey * uy0) + cc)) > lateral:
-                    ok = False
-            if not ok:
+                fit_x[k] = q[sid, 0] - q[a, 0]
+                fit_y[k] = q[sid, 1] - q[a, 1]
+            kk, cc, status = _fit_across(fit_x, fit_y, anchor, ux0, uy0, lateral)  # step 11's fit
+            if status != 0:
                 why[1] += 1
                 continue
             # the fitted line: o (at the end sample) + s·u, u outward
@@ -550,10 +527,4 @@ def with_one_sided(
     else:
         q_all, f_all, k_all, j_all = q, fam, index, junction
     op = fill_one_sided(q_all, f_all, k_all, j_all, index_samples=index, shared=sh, **kwargs)
-    stats = dict(cp.stats) if cp is not None else {"samples_crossing_filled": 0}
-    stats["samples_one_sided_filled"] = op.stats["samples_one_sided_filled"]
-    stats["one_sided"] = op.stats
-    if cp is None or len(cp.index) == 0:
-        return CrossingPoints(op.q, op.family, op.index, op.junction, stats)
-    return CrossingPoints(np.concatenate([cp.q, op.q]), np.concatenate([cp.family, op.family.astype(cp.family.dtype)]),
-                          np.concatenate([cp.index, op.index]), np.concatenate([cp.junction, op.junction]), stats)
+    return appended(cp, op, "samples_one_sided_filled", "one_sided")
