@@ -861,6 +861,64 @@ def _nearest_seed(piece: np.ndarray, t: np.ndarray, has: np.ndarray) -> np.ndarr
     return _k.nearest_seed(np.ascontiguousarray(piece), np.ascontiguousarray(t, np.float64), np.ascontiguousarray(has, np.bool_))
 
 
+@dataclass(frozen=True, eq=False)
+class SamplePrep:
+    """What `label_samples` measures on the samples and the image before any label is known (decision 0107):
+    computed by `prepare_samples`, in the pipeline's extraction stage.
+
+    cell: the extraction's sampling step (camera px, 1 or 2); valid (P,) bool, r, c (P,) the samples' cells on
+    a grid of that step padded by 2 (H, W cells; `_label_kernels.sample_cells`), n_valid; near_other (P,) bool:
+    the mixing zone, within mix_sigma·σ of a sample of the other family (a disk on that grid); blurred: the
+    image 3×3 box-filtered (`_box3`, None without an image); ridge (P,) float32: blurred at the samples
+    (`_ridge_brightness`, None without an image or with max_ridge_step 0). key: what it was computed for
+    (P, σ, mix_sigma, whether the ridge was read, the image's id)."""
+
+    cell: int
+    valid: np.ndarray
+    r: np.ndarray
+    c: np.ndarray
+    H: int
+    W: int
+    n_valid: int
+    near_other: np.ndarray | None
+    blurred: np.ndarray | None
+    ridge: np.ndarray | None
+    key: tuple
+
+    def check(self, n_samples: int, sigma_px: float, options: TraceOptions, image: np.ndarray | None) -> None:
+        """ValueError unless this was prepared for these samples, σ, options and image."""
+        want = _prep_key(n_samples, sigma_px, options, image)
+        if want != self.key:
+            raise ValueError(f"label_samples: prep was computed for (samples, sigma_px, mix_sigma, ridge, image) = {self.key[:4]}, "
+                             f"not {want[:4]} (or for another image); pass the prepare_samples result of this frame and options, or None")
+
+
+def _prep_key(n_samples: int, sigma_px: float, options: TraceOptions, image: np.ndarray | None) -> tuple:
+    return (int(n_samples), float(sigma_px), float(options.mix_sigma), image is not None and options.max_ridge_step > 0,
+            None if image is None else id(image))
+
+
+def prepare_samples(obs: GridObservation, *, sigma_px: float, options: TraceOptions = TraceOptions(),
+                    image: np.ndarray | None = None) -> SamplePrep:
+    """`label_samples`' measurements that need no label (SamplePrep): the samples' cells, the mixing zone, the
+    box-filtered image and the ridge brightness at the samples. Same arguments as label_samples."""
+    q = np.ascontiguousarray(np.asarray(obs.q, np.float64).reshape(-1, 2))
+    fam = np.ascontiguousarray(np.asarray(obs.family).reshape(-1), np.intp)
+    key = _prep_key(len(q), sigma_px, options, image)
+    # Grid of cells of the extraction's sampling step (padded so that neighbour lookups never wrap): samples
+    # from a half-resolution working image lie about 2 px apart and would never be neighbours on the
+    # camera's pixel grid (decision 0066).
+    cell = max(1, int(obs.stats.get("scale", 1)))
+    valid, r, c, H, W, n_valid = _k.sample_cells(q, fam, float(cell), 2)
+    if n_valid == 0:
+        return SamplePrep(cell, valid, r, c, int(H), int(W), 0, None, None, None, key)
+    rad = max(1, int(round(options.mix_sigma * sigma_px / cell)))
+    near_other = _k.mixing_zone(r, c, fam, valid, int(H), int(W), *_disk_offsets(rad))
+    blurred = _box3(image) if image is not None else None
+    ridge = _ridge_brightness(blurred, q) if image is not None and options.max_ridge_step > 0 else None
+    return SamplePrep(cell, valid, r, c, int(H), int(W), int(n_valid), near_other, blurred, ridge, key)
+
+
 def label_samples(
     obs: GridObservation,
     junction_labels: np.ndarray,
@@ -872,6 +930,7 @@ def label_samples(
     depth_range_mm: tuple[float, float] = (0.0, np.inf),
     image: np.ndarray | None = None,
     line_width_px: float | None = None,
+    prep: SamplePrep | None = None,
 ) -> SampleLabels:
     """Give every line sample the index of its line, following the visible trace of the line from the
     labelled junctions on it.
@@ -890,8 +949,10 @@ def label_samples(
     junction_labels (M, 2) int, UNLABELLED where none. sigma_px: the extraction's smoothing scale.
     seed_radius_px: how far from a junction its seeds may lie (camera px). model, depth_range_mm: for
     the crossing pieces (`cross_pieces`, skipped without a model). image, line_width_px: for the cut-profile test
-    (`max_profile_drop`, skipped without them). Order: seeds and traces, crossing pieces, continuation,
-    one more crossing round (`cross_rounds_after`), cut profiles, gap filling.
+    (`max_profile_drop`, skipped without them). prep: `prepare_samples(obs, sigma_px=sigma_px, options=options,
+    image=image)` when the caller computed it already (the pipeline does, in the extraction stage; decision
+    0107); None: computed here. Order: seeds and traces, crossing pieces, continuation, one more crossing
+    round (`cross_rounds_after`), cut profiles, gap filling.
 
     Speed: the per-sample steps (valid samples and their cells, mixing zone, seeds, trace linking and
     cutting, the nearest seed, the crossing search at piece ends, the continuation, gap candidates and
@@ -908,19 +969,16 @@ def label_samples(
     P = len(q)
     stats = {"samples": P, "mixing_zone": 0, "snapped_to_junction_line": 0, "seeds": 0, "seed_conflicts": 0, "traces": 0,
              "traces_seeded": 0, "traces_conflicting": 0, "samples_labelled": 0, "samples_unseeded": 0, "cut_profile": 0}
-    # Grid of cells of the extraction's sampling step (padded so that neighbour lookups never wrap): samples
-    # from a half-resolution working image lie about 2 px apart and would never be neighbours on the
-    # camera's pixel grid (decision 0066).
-    cell = max(1, int(obs.stats.get("scale", 1)))
-    pad = 2
-    valid, r, c, H, W, n_valid = _k.sample_cells(np.ascontiguousarray(q), fam, float(cell), pad)
-    if n_valid == 0:
+    if prep is None:
+        prep = prepare_samples(obs, sigma_px=sigma_px, options=options, image=image)
+    else:
+        prep.check(P, sigma_px, options, image)
+    cell = prep.cell
+    valid = prep.valid
+    if prep.n_valid == 0:
         return SampleLabels(index, q_out, seed_jid, stats)
-    H = int(H)
-    W = int(W)
-    # 1. The mixing zone: within mix_sigma·σ of a sample of the other family (a disk on the pixel grid).
-    rad = max(1, int(round(options.mix_sigma * sigma_px / cell)))
-    near_other = _k.mixing_zone(r, c, fam, valid, H, W, *_disk_offsets(rad))
+    # 1. The mixing zone (prepare_samples).
+    near_other = prep.near_other
     # 2. Seeds: samples near a labelled junction, on its fitted line of their family.
     lab = np.asarray(junction_labels, np.int64).reshape(-1, 2)
     labelled = np.flatnonzero(lab[:, 0] != UNLABELLED)
@@ -936,10 +994,9 @@ def label_samples(
     stats["mixing_zone"] = int(n_mix) - stats["snapped_to_junction_line"]
     stats["seeds"] = int(n_seeds)
     # 3. Trace pieces and the nearest seed along each.
-    ridge = None
-    blurred = _box3(image) if image is not None else None
-    if image is not None and options.max_ridge_step > 0:
-        ridge = _ridge_brightness(blurred, q)
+    ridge = prep.ridge
+    blurred = prep.blurred
+    r, c, H, W = prep.r, prep.c, prep.H, prep.W
     if len(k_idx):
         use_ridge = ridge is not None and options.max_ridge_step > 0
         seg_linked = getattr(obs, "segment_linked", None)

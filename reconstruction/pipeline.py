@@ -31,7 +31,8 @@ from reconstruction.crossing_fill import CrossingFillOptions, CrossingPoints, fi
 from reconstruction.crossing_fill_one_sided import OneSidedFillOptions, with_one_sided
 from reconstruction.extraction import ExtractOptions, GridObservation, extract_grid, sigma_for
 from reconstruction.geometry import triangulate_rays
-from reconstruction.labelling import LabelOptions, Labels, SampleLabels, TraceOptions, label_epipolar, label_paper, label_samples
+from reconstruction.labelling import (LabelOptions, Labels, SampleLabels, SamplePrep, TraceOptions, label_epipolar, label_paper,
+                                      label_samples, prepare_samples)
 from reconstruction.patterns import GridPattern
 from reconstruction._jit import njit
 from reconstruction.rigmodel import UNLABELLED, RigModel, rig_model
@@ -136,13 +137,18 @@ def reconstruct(
 @dataclass(frozen=True, eq=False)
 class ExtractedFrame:
     """A frame after the extraction stage (`extract_frame`), ready for `finish_frame`: the image, the grid
-    observation, the rig model and the options, and the stage's times (ms: "model", "extract")."""
+    observation, the rig model and the options, the stage's times (ms: "model", "extract"), and the samples'
+    measurements that need no label (`labelling.prepare_samples`; None without samples or with dense off) and
+    the junctions' normalised camera coordinates xy_cam_j (M, 2) (`RigModel.cam_normalised`; None: computed by
+    finish_frame)."""
 
     image: np.ndarray
     obs: GridObservation
     model: RigModel
     options: ReconstructOptions
     ms: dict
+    prep: SamplePrep | None = None
+    xy_cam_j: np.ndarray | None = None
 
 
 def extract_frame(
@@ -158,8 +164,20 @@ def extract_frame(
     model = rig_model(procam, pattern, (float(options.depth_min_mm), float(options.depth_max_mm)))
     t_model = time.perf_counter()
     obs = extract_grid(image, model, options=options.extract)
+    prep = None
+    if options.dense and len(obs.q):
+        # the samples' measurements that need no label (cells, mixing zone, ridge brightness): extraction's
+        # work, so that the two threads of a stream carry similar loads (decision 0107)
+        prep = prepare_samples(obs, sigma_px=_sigma(obs, model, options), options=options.trace, image=image)
+    xy_cam_j = model.cam_normalised(obs.q_junction)
     t_extract = time.perf_counter()
-    return ExtractedFrame(image, obs, model, options, {"model": 1e3 * (t_model - t0), "extract": 1e3 * (t_extract - t_model)})
+    return ExtractedFrame(image, obs, model, options, {"model": 1e3 * (t_model - t0), "extract": 1e3 * (t_extract - t_model)}, prep,
+                          xy_cam_j)
+
+
+def _sigma(obs: GridObservation, model: RigModel, options: ReconstructOptions) -> float:
+    """The extraction's smoothing scale σ (camera px) of this frame."""
+    return float(obs.stats.get("sigma_px", sigma_for(model, options.extract)))
 
 
 def finish_frame(frame: ExtractedFrame) -> Reconstruction:
@@ -167,7 +185,7 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
     stats["ms"] holds every stage's time, "total" their sum."""
     image, obs, model, options = frame.image, frame.obs, frame.model, frame.options
     t_extract = time.perf_counter()
-    xy_cam_j = model.cam_normalised(obs.q_junction)
+    xy_cam_j = model.cam_normalised(obs.q_junction) if frame.xy_cam_j is None else frame.xy_cam_j
     if options.labeller == "paper":
         lab = label_paper(obs, model, xy_cam_j)
     else:
@@ -177,7 +195,7 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
     # Line samples take their line's index along the trace from a labelled junction (part of labelling).
     sl = None
     if options.dense and (lab.labels[:, 0] != UNLABELLED).any() and len(obs.q):
-        sigma = float(obs.stats.get("sigma_px", sigma_for(model, options.extract)))
+        sigma = _sigma(obs, model, options)
         seed_r = float(obs.stats.get("junction_radius_px", 0.4 * model.junction_step_cam_px))
         trace = options.trace
         if options.labeller == "paper" and trace.piece_junctions:
@@ -186,7 +204,7 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
             trace = replace(trace, piece_junctions=False)
         sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=trace, model=model,
                            depth_range_mm=(options.depth_min_mm, options.depth_max_mm), image=image,
-                           line_width_px=model.line_width_cam_px)
+                           line_width_px=model.line_width_cam_px, prep=frame.prep)
     cp = None
     if sl is not None and options.labeller == "epipolar" and options.crossing.enabled:
         # points through crossings whose line is labelled on both sides (decision 0086); the paper labeller's
