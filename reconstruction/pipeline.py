@@ -237,6 +237,39 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
     return result
 
 
+_LEFT_OUT_WHY = {
+    "ambiguous": "another label offset fits almost as well",
+    "no_admissible_offset": "no label offset puts them inside the pattern and the working volume",
+    "component_too_small": "too few connected junctions to choose an offset",
+    "residual_too_large": "they lie too far from their epipolar lines",
+    "out_of_depth_range": "their points fall outside the working volume",
+    "split_too_small": "what is left after removing outliers is too small",
+}
+
+
+def left_out_warning(n_junctions: int, n_labelled: int, left_out: dict, margin) -> str | None:
+    """The frame's warning when labelling left out every junction, or most of them as ambiguous (None: no
+    warning). Names the main reason; when it is ambiguity and the rig's labelling margin
+    (`placement.LabellingMargin`) is "marginal", adds the margin's advice (a tighter depth range, another
+    camera direction, De Bruijn spacing), which is the fix; an "ill-posed" margin has a warning of its own."""
+    counts = {k: int(v) for k, v in left_out.items() if int(v) > 0}
+    n_amb = counts.get("ambiguous", 0)
+    if n_labelled > 0 and n_amb <= 0.5 * n_junctions:
+        return None
+    if n_labelled == 0:
+        head = f"found {n_junctions} junctions but could not label any of them"
+    else:
+        head = f"{n_amb} of {n_junctions} junctions were left out as ambiguous"
+    if counts:
+        top = max(counts, key=counts.get)
+        head += f": {counts[top]} {top.replace('_', ' ')} ({_LEFT_OUT_WHY.get(top, 'see stats: junctions_left_out')})"
+        if top == "ambiguous" and margin is not None and margin.verdict == "marginal":
+            return f"{head}; {margin.advice()}"
+        if top == "ambiguous" and margin is not None and margin.verdict == "ill-posed":
+            return f"{head}; the rig's labelling is ill-posed (next warning)"
+    return head + " (see stats: junctions_left_out)"
+
+
 def _triangulate(
     image, obs: GridObservation, lab: Labels, sl: SampleLabels | None, model: RigModel, xy_cam_j, options: ReconstructOptions,
     cp: CrossingPoints | None = None,
@@ -328,8 +361,10 @@ def _triangulate(
     }
     if M == 0:
         warnings.append("no usable grid in this frame (no line crossings found): check exposure, focus and that the pattern is shown")
-    elif n_j == 0:
-        warnings.append(f"found {M} junctions but could not label any of them (see stats: junctions_left_out)")
+    else:
+        w = left_out_warning(M, n_j, lab.stats.get("junctions_left_out", {}), model.margin)
+        if w:
+            warnings.append(w)
     if model.margin.verdict == "ill-posed":
         # The same measure and threshold as `rig check` (placement.labelling_margin, decision 0065).
         warnings.append(f"{model.margin.advice()} [this rig and working volume {options.depth_min_mm:.0f}–{options.depth_max_mm:.0f} mm]")
