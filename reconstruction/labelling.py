@@ -34,6 +34,7 @@ from reconstruction.piece_junctions import label_piece_junctions
 from reconstruction.piece_seeds import seed_one_sided
 from reconstruction.surface_labels import label_from_surface
 from reconstruction.limb_lines import label_beside_lines
+from reconstruction.residual_clusters import elevated_pieces, kept_adjacency
 from reconstruction.rigmodel import UNLABELLED, RigModel
 from reconstruction.trace_ends import cut_facing_ends, cut_far_ends
 
@@ -58,6 +59,11 @@ class LabelOptions:
     min_split_component: pieces split off as outliers need this many junctions to be labelled again.
     max_split_rounds: how often a component may be split.
     min_component: components with fewer junctions are left out.
+    residual_clusters, cluster_factor, cluster_floor_px, cluster_min: a connected group of at least cluster_min
+        junctions whose local median residual exceeds max(cluster_factor·σ̂, cluster_floor_px) is taken out like
+        outliers, and of the rest the connected pieces no larger than that group are labelled again on their own
+        (a part joined across a depth edge by a lattice vector that runs nearly along the epipolar lines;
+        `residual_clusters`, decision 0108).
     """
 
     depth_min_mm: float = 100.0
@@ -74,12 +80,18 @@ class LabelOptions:
     min_split_component: int = 3
     max_split_rounds: int = 3
     min_component: int = 1
+    residual_clusters: bool = True
+    cluster_factor: float = 3.0
+    cluster_floor_px: float = 0.075
+    cluster_min: int = 3
 
     def __post_init__(self) -> None:
         # the ambiguity test divides by noise_floor_px² (compiled: a zero would give inf/NaN silently)
-        for name in ("noise_floor_px", "residual_cap_px", "candidate_band_px", "max_residual_px"):
+        for name in ("noise_floor_px", "residual_cap_px", "candidate_band_px", "max_residual_px", "cluster_factor", "cluster_floor_px"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"LabelOptions.{name} = {getattr(self, name)}: must be > 0")
+        if not self.cluster_min >= 1:
+            raise ValueError(f"LabelOptions.cluster_min = {self.cluster_min}: must be >= 1")
         if not self.depth_max_mm > self.depth_min_mm:
             raise ValueError(f"LabelOptions: depth_max_mm ({self.depth_max_mm}) must be greater than depth_min_mm ({self.depth_min_mm})")
 
@@ -288,6 +300,26 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm),
         float(options.outlier_sigma), float(options.max_residual_px), float(options.noise_floor_px**2),
         float(options.ambiguity_chi2), float(options.min_rms_ratio**2), labels, residual)
+    # Groups of junctions off their epipolar lines together (decision 0108): taken out like outliers.
+    clusters = None
+    stats["junctions_residual_clusters"] = 0
+    if options.residual_clusters:
+        adj: list = []
+        pos = np.full(M, -1, np.intp)
+
+        def clusters(members, bad, n_bad):
+            if not adj:
+                adj.extend(kept_adjacency(int(M), e_arrays[0], e_arrays[1], keep))
+            out, added = elevated_pieces(members, residual, bad, adj[0], adj[1], pos, float(options.cluster_factor),
+                                         float(options.cluster_floor_px), int(options.cluster_min))
+            if added == 0:
+                return bad, n_bad
+            newly = members[out & ~bad]
+            labels[newly] = UNLABELLED
+            residual[newly] = np.nan
+            stats["junctions_residual_clusters"] += int(added)
+            return out, n_bad + int(added)
+
     # Work list: (members, split round, first-round group or −1). Pieces split off are relabelled on their own.
     work = [(order[bounds[g] : bounds[g + 1]], 0, g) for g in range(len(bounds) - 1)]
     while work:
@@ -306,10 +338,12 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             stats["out_of_depth_range"] += int(g_fail[g])
             stats["components_labelled"] += 1
             n_bad = int(g_nbad[g])
-            if n_bad == 0:
-                continue
             b0, b1 = bounds[g], bounds[g + 1]
             bad, inside_m = g_bad[b0:b1], g_in[b0:b1]
+            if clusters is not None and m >= 2 * options.cluster_min:
+                bad, n_bad = clusters(members, bad, n_bad)
+            if n_bad == 0:
+                continue
         elif g >= 0:
             b0, b1 = bounds[g], bounds[g + 1]
             ok_g = bool(g_ok[g])
@@ -332,6 +366,8 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
                                             labels, residual)
             inside_m = ch.inside
             stats["components_labelled"] += 1
+            if clusters is not None and m >= 2 * options.cluster_min:
+                bad, n_bad = clusters(members, bad, n_bad)
             if n_bad == 0:
                 continue
         # Outliers: cut their edges to the inliers; what they hold together is labelled again on its own.

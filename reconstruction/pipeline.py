@@ -358,6 +358,7 @@ def _triangulate(
         "samples_border_filled": int(cp.stats.get("samples_border_filled", 0)) if cp is not None else 0,
         "traces_conflicting": int(sample_stats.get("traces_conflicting", 0)),
         "components_split": int(lab.stats.get("components_split", 0)),
+        "junctions_residual_clusters": int(lab.stats.get("junctions_residual_clusters", 0)),
     }
     if M == 0:
         warnings.append("no usable grid in this frame (no line crossings found): check exposure, focus and that the pattern is shown")
