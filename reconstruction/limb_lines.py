@@ -132,6 +132,31 @@ def _end(p, side, n_p, end_pos, q, sid, tangent, anchor):
 
 
 @njit
+def _facing(p, ex, ey, ux, uy, q, piece, f, reach, lateral, x0, y0, cell, gw, gh, start, items, pos_of):
+    """The facing sample of piece p's end at (ex, ey) with outward direction (ux, uy): the nearest trace sample of
+    family f on another piece ahead, within reach along and lateral + sin 12° of its distance across the end's
+    tangent (the first sample of the next piece of the line); −1: none."""
+    ncell = gw * gh
+    best = reach + 1.0
+    sb = -1
+    cx0, cx1, cy0, cy1 = _cells(ex + 0.5 * reach * ux, ey + 0.5 * reach * uy, 0.5 * reach + lateral + _BEND * reach, x0, y0, cell, gw, gh)
+    for cy in range(cy0, cy1 + 1):
+        for cx in range(cx0, cx1 + 1):
+            i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
+            for it in range(i0, i1):
+                s = items[it]
+                k = pos_of[s]
+                if k < 0 or piece[k] == p:
+                    continue
+                dx, dy = q[s, 0] - ex, q[s, 1] - ey
+                al = dx * ux + dy * uy
+                if al > 0.0 and al <= reach and al < best and abs(dx * uy - dy * ux) <= lateral + _BEND * al:
+                    best = al
+                    sb = s
+    return sb
+
+
+@njit
 def _crossings(p, q, fam, sid, piece, tangent, end_pos, anchor, n_p, f, reach, lateral, cross_r, x0, y0, cell, gw, gh, start, items, pos_of, cr):
     """Step 2 for piece p (family f): its two gap middles into cr[p]; 0 when both are found, 1 when an end has
     no facing piece of its line within reach, 2 when a gap has no sample of the other family within cross_r
@@ -140,26 +165,10 @@ def _crossings(p, q, fam, sid, piece, tangent, end_pos, anchor, n_p, f, reach, l
     for side in range(2):
         ex, ey, ux, uy = _end(p, side, n_p, end_pos, q, sid, tangent, anchor)
         # the facing sample of the same family ahead: the first of the next piece of the line
-        best = reach + 1.0
-        bx = 0.0
-        by = 0.0
-        cx0, cx1, cy0, cy1 = _cells(ex + 0.5 * reach * ux, ey + 0.5 * reach * uy, 0.5 * reach + lateral + _BEND * reach, x0, y0, cell, gw, gh)
-        for cy in range(cy0, cy1 + 1):
-            for cx in range(cx0, cx1 + 1):
-                i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
-                for it in range(i0, i1):
-                    s = items[it]
-                    k = pos_of[s]
-                    if k < 0 or piece[k] == p:
-                        continue
-                    dx, dy = q[s, 0] - ex, q[s, 1] - ey
-                    al = dx * ux + dy * uy
-                    if al > 0.0 and al <= reach and al < best and abs(dx * uy - dy * ux) <= lateral + _BEND * al:
-                        best = al
-                        bx, by = q[s, 0], q[s, 1]
-        if best > reach:
+        sb = _facing(p, ex, ey, ux, uy, q, piece, f, reach, lateral, x0, y0, cell, gw, gh, start, items, pos_of)
+        if sb < 0:
             return 1
-        mx, my = 0.5 * (ex + bx), 0.5 * (ey + by)
+        mx, my = 0.5 * (ex + q[sb, 0]), 0.5 * (ey + q[sb, 1])
         # a crossing, not a silhouette or a shadow: a sample of the other family near the gap's middle
         hit = False
         cx0, cx1, cy0, cy1 = _cells(mx, my, cross_r, x0, y0, cell, gw, gh)
@@ -684,6 +693,58 @@ def _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_sa
     return ok, n_pieces, n_samples, n_amb, left
 
 
+@njit
+def _k_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, n_p, anchor, reach, lateral, x0, y0, cell, gw, gh, start, items,
+            pos_of):
+    """The ends of the pieces this step labelled (decision 0106): the samples within trim_px of an end (left out by
+    `_k_write`) whose facing piece (`_facing`, as step 2 found it) is not labelled after the rounds take the piece's line, with the
+    junction of its nearest labelled sample. Where the facing piece carries the same line the gap fillings put
+    points through the crossing (0103's trim stands); where it carries another line the end stays trimmed too.
+    was_unlabelled (P,) bool: index was NaN before the step. Returns the samples written."""
+    end_pos, labelled, val = _k_pieces(sid, piece, index, n_p)
+    n = sid.shape[0]
+    mine = np.zeros(n_p, np.bool_)  # pieces labelled by this step: the step labels only pieces without a label
+    for x in range(n):
+        s = sid[x]
+        if was_unlabelled[s] and math.isfinite(index[s]):
+            mine[piece[x]] = True
+    n_s = 0
+    for p in range(n_p):
+        if not mine[p]:
+            continue
+        a, b = end_pos[p], end_pos[n_p + p]
+        f = fam[sid[a]]
+        for side in range(2):
+            ex, ey, ux, uy = _end(p, side, n_p, end_pos, q, sid, tangent, anchor)
+            sb = _facing(p, ex, ey, ux, uy, q, piece, f, reach, lateral, x0, y0, cell, gw, gh, start, items, pos_of)
+            if sb < 0 or labelled[piece[pos_of[sb]]]:
+                continue
+            # from the end inwards to the first labelled sample
+            x = a if side == 0 else b
+            step = 1 if side == 0 else -1
+            inner = x
+            while inner >= a and inner <= b and not math.isfinite(index[sid[inner]]):
+                inner += step
+            if inner < a or inner > b:
+                continue
+            jid = seed_jid[sid[inner]]
+            while x != inner:  # the samples 0103's trim left out (all within trim_px of the end)
+                s = sid[x]
+                index[s] = val[p]
+                seed_jid[s] = jid
+                n_s += 1
+                x += step
+    return n_s
+
+
+def _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, *, grid, reach_px, lateral_px, anchor) -> int:
+    """`_k_ends` with label_beside_lines' arguments."""
+    n_p = int(piece[-1]) + 1
+    x0, y0, cell, gw, gh, start, items, pos_of = grid
+    return int(_k_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, n_p, int(anchor), float(reach_px), float(lateral_px),
+                       x0, y0, cell, gw, gh, start, items, pos_of))
+
+
 def label_beside_lines(
     q: np.ndarray,
     fam: np.ndarray,
@@ -708,6 +769,7 @@ def label_beside_lines(
     min_samples: int = 4,
     anchor: int = 3,
     rounds: int = 8,
+    ends: bool = True,
 ) -> dict:
     """Label unlabelled pieces beside a labelled line of their family whose two crossings confirm the line on
     its own light sheet (module doc).
@@ -735,6 +797,7 @@ def label_beside_lines(
     if len(start) != 2 * gw * gh + 1:
         raise ValueError("label_beside_lines needs the bucket grid split by family: build it with labelling._sample_grid(..., fam)")
     fixed = model._sheet_check_args
+    was_unlabelled = np.isnan(index) if ends else None
     if fixed is not None:
         ok, n_pieces, n_samples, n_amb, left = _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, int(anchor), int(min_samples),
                                                       float(reach_px), float(lateral_px), float(mix_sigma * sigma_px), float(across_px),
@@ -745,15 +808,19 @@ def label_beside_lines(
             stats["samples"] = int(n_samples)
             stats["ambiguous"] = int(n_amb)
             stats["left_out"] = dict(zip(("no_facing_piece", "no_crossing", "no_neighbour", "neighbour_unlabelled"), (int(c) for c in left)))
+            if ends:
+                stats["samples_ends"] = _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, grid=grid, reach_px=reach_px,
+                                                    lateral_px=lateral_px, anchor=anchor)
+                stats["samples"] += stats["samples_ends"]
             return stats
     # the NumPy path of RigModel (no camera table, or a pixel outside it): round by round
     return _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm, grid=grid,
                       sigma_px=sigma_px, reach_px=reach_px, across_px=across_px, mix_sigma=mix_sigma, trim_px=trim_px, tol_px=tol_px,
-                      margin=margin, lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, rounds=rounds)
+                      margin=margin, lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, rounds=rounds, ends=ends)
 
 
 def _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, *, model, depth_range_mm, grid, sigma_px, reach_px, across_px, mix_sigma,
-               trim_px, tol_px, margin, lateral_px, min_samples, anchor, rounds) -> dict:
+               trim_px, tol_px, margin, lateral_px, min_samples, anchor, rounds, ends=True) -> dict:
     """`label_beside_lines` round by round through `RigModel.sheet_check` and `sheet_depth` (their NumPy path
     where the camera table does not cover a pixel): `_k_round`, `_k_verdicts`, `_k_write` per round, every
     piece's search repeated where it reaches a dirty cell. The same labels and counts as `_k_all` (checked by
@@ -762,6 +829,7 @@ def _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, *, model, depth
     n_p = int(piece[-1]) + 1
     z_lo, z_hi = float(depth_range_mm[0]), float(depth_range_mm[1])
     x0, y0, cell, gw, gh, start, items, pos_of = grid
+    was_unlabelled = np.isnan(index) if ends else None
     end_pos, labelled, val = _k_pieces(sid, piece, index, n_p)
     why = np.full(n_p, 6, np.int8)
     cr = np.zeros((n_p, 2, 2))
@@ -788,4 +856,8 @@ def _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, *, model, depth
             break
         stats["pieces"] += int(n_pieces)
         stats["samples"] += int(n_samples)
+    if ends:
+        stats["samples_ends"] = _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, grid=grid, reach_px=reach_px,
+                                            lateral_px=lateral_px, anchor=anchor)
+        stats["samples"] += stats["samples_ends"]
     return stats
