@@ -1062,8 +1062,13 @@ def _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, *, model, depth
 
 def _after_rounds(stats, q, fam, sid, piece, ts, tangent, index, seed_jid, was_unlabelled, *, model, depth_range_mm, grid, sigma_px, reach_px,
                   across_px, mix_sigma, trim_px, tol_px, margin, lateral_px, min_samples, anchor, ends, one_crossing) -> None:
-    """Decision 0106's passes after the rounds, into stats: the pieces with one crossing (`_label_one_crossing`,
-    when one_crossing), then the trimmed ends facing an unlabelled piece (`_label_ends`, when ends)."""
+    """Decision 0106's passes after the rounds, into stats: the trimmed ends facing an unlabelled piece
+    (`_label_ends`, when ends), then the pieces with one crossing (`_label_one_crossing`, when one_crossing; their
+    ends stay trimmed)."""
+    if ends:
+        stats["samples_ends"] = _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, grid=grid, reach_px=reach_px,
+                                            lateral_px=lateral_px, anchor=anchor)
+        stats["samples"] += stats["samples_ends"]
     if one_crossing:
         n_pc, n_sm, n_amb = _label_one_crossing(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
                                                 grid=grid, sigma_px=sigma_px, reach_px=reach_px, across_px=across_px, mix_sigma=mix_sigma,
@@ -1073,7 +1078,3 @@ def _after_rounds(stats, q, fam, sid, piece, ts, tangent, index, seed_jid, was_u
         stats["samples"] += n_sm
         stats["ambiguous"] += n_amb
         stats["samples_one_crossing"] = n_sm
-    if ends:
-        stats["samples_ends"] = _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, grid=grid, reach_px=reach_px,
-                                            lateral_px=lateral_px, anchor=anchor)
-        stats["samples"] += stats["samples_ends"]
