@@ -694,21 +694,26 @@ def _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_sa
 
 
 @njit
-def _k_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, n_p, anchor, reach, lateral, x0, y0, cell, gw, gh, start, items,
-            pos_of):
-    """The ends of the pieces this step labelled (decision 0106): the samples within trim_px of an end (left out by
-    `_k_write`) whose facing piece (`_facing`, as step 2 found it) is not labelled after the rounds take the piece's line, with the
-    junction of its nearest labelled sample. Where the facing piece carries the same line the gap fillings put
-    points through the crossing (0103's trim stands); where it carries another line the end stays trimmed too.
-    was_unlabelled (P,) bool: index was NaN before the step. Returns the samples written."""
+def _k_end_rows(q, fam, sid, piece, tangent, index, was_unlabelled, n_p, anchor, reach, lateral, x0, y0, cell, gw, gh, start, items, pos_of):
+    """The ends of the pieces this step labelled (decision 0106) whose facing piece (`_facing`, as step 2 found
+    it) is unlabelled after the rounds: where the facing piece carries the piece's line the gap fillings put
+    points through the crossing (0103's trim stands), where it carries another line the end stays trimmed too.
+    was_unlabelled (P,) bool: index was NaN before the step (the step labels only pieces without a label).
+    Returns per end (ne,): piece, side, the first labelled trace position inside it (the samples before it are
+    the trimmed ones), and the rows of the sheet check on the piece's sheet, 2 per end: the gap's middle, then
+    the facing sample: pixels (2·ne, 2), family and line (2·ne,)."""
     end_pos, labelled, val = _k_pieces(sid, piece, index, n_p)
     n = sid.shape[0]
-    mine = np.zeros(n_p, np.bool_)  # pieces labelled by this step: the step labels only pieces without a label
+    mine = np.zeros(n_p, np.bool_)
     for x in range(n):
         s = sid[x]
         if was_unlabelled[s] and math.isfinite(index[s]):
             mine[piece[x]] = True
-    n_s = 0
+    ends = np.empty((2 * n_p, 3), np.intp)
+    rq = np.empty((4 * n_p, 2))
+    rf = np.empty(4 * n_p, np.intp)
+    rk = np.empty(4 * n_p, np.intp)
+    ne = 0
     for p in range(n_p):
         if not mine[p]:
             continue
@@ -719,226 +724,67 @@ def _k_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, n_p, a
             sb = _facing(p, ex, ey, ux, uy, q, piece, f, reach, lateral, x0, y0, cell, gw, gh, start, items, pos_of)
             if sb < 0 or labelled[piece[pos_of[sb]]]:
                 continue
-            # from the end inwards to the first labelled sample
             x = a if side == 0 else b
             step = 1 if side == 0 else -1
             inner = x
             while inner >= a and inner <= b and not math.isfinite(index[sid[inner]]):
                 inner += step
-            if inner < a or inner > b:
+            if inner < a or inner > b or inner == x:
                 continue
-            jid = seed_jid[sid[inner]]
-            while x != inner:  # the samples 0103's trim left out (all within trim_px of the end)
-                s = sid[x]
-                index[s] = val[p]
-                seed_jid[s] = jid
-                n_s += 1
-                x += step
+            ends[ne, 0] = p
+            ends[ne, 1] = side
+            ends[ne, 2] = inner
+            rq[2 * ne, 0] = 0.5 * (ex + q[sb, 0])
+            rq[2 * ne, 1] = 0.5 * (ey + q[sb, 1])
+            rq[2 * ne + 1, 0] = q[sb, 0]
+            rq[2 * ne + 1, 1] = q[sb, 1]
+            for r in range(2):
+                rf[2 * ne + r] = f
+                rk[2 * ne + r] = int(val[p])
+            ne += 1
+    return ends[:ne], rq[: 2 * ne], rf[: 2 * ne], rk[: 2 * ne], end_pos, val
+
+
+@njit
+def _k_write_ends(ends, keep, end_pos, n_p, sid, index, seed_jid, val):
+    """The trimmed samples of the kept ends (keep (ne,) bool) take their piece's line and the junction of the
+    first labelled sample inside the end. Returns the samples written."""
+    n_s = 0
+    for e in range(ends.shape[0]):
+        if not keep[e]:
+            continue
+        p, side, inner = ends[e, 0], ends[e, 1], ends[e, 2]
+        x = end_pos[p] if side == 0 else end_pos[n_p + p]
+        step = 1 if side == 0 else -1
+        jid = seed_jid[sid[inner]]
+        while x != inner:  # the samples 0103's trim left out (all within trim_px of the end)
+            s = sid[x]
+            index[s] = val[p]
+            seed_jid[s] = jid
+            n_s += 1
+            x += step
     return n_s
 
 
-@njit
-def _k_one_crossing(q, fam, sid, piece, tangent, index, n_p, anchor, min_samples, reach, lateral, cross_r, across_r, x0, y0, cell, gw, gh,
-                    start, items, pos_of):
-    """Candidates with one crossing (decision 0106): unlabelled pieces of at least min_samples samples with a
-    facing piece and a crossing (`_crossings`' tests) at one end only, no facing piece within reach at the other
-    (the line ends there: a silhouette, a shadow, the border), and a labelled neighbour line (`_k_round`'s
-    search). Returns cand (nc,), kc (nc, 3) as `_k_round`'s, nb (nc, 2), end_pos, and the rows of the sheet
-    check, 4 per candidate: the crossing on sheets centre − 1 and centre + 1, then each side's neighbour
-    sample on its own sheet: pixels (4·nc, 2), family and line (4·nc,)."""
-    end_pos, labelled, val = _k_pieces(sid, piece, index, n_p)
-    ncell = gw * gh
-    cand = np.empty(n_p, np.intp)
-    kc = np.empty((n_p, 3), np.int64)
-    nb = np.empty((n_p, 2), np.intp)
-    cx_ = np.empty((n_p, 2))
-    n_out = 0
-    for p in range(n_p):
-        a, b = end_pos[p], end_pos[n_p + p]
-        if labelled[p] or b - a + 1 < min_samples:
-            continue
-        f = fam[sid[a]]
-        n_face = 0
-        mx = 0.0
-        my = 0.0
-        for side in range(2):
-            ex, ey, ux, uy = _end(p, side, n_p, end_pos, q, sid, tangent, anchor)
-            sb = _facing(p, ex, ey, ux, uy, q, piece, f, reach, lateral, x0, y0, cell, gw, gh, start, items, pos_of)
-            if sb >= 0:
-                n_face += 1
-                mx, my = 0.5 * (ex + q[sb, 0]), 0.5 * (ey + q[sb, 1])
-        if n_face != 1:
-            continue
-        hit = False  # a crossing, not a silhouette or a shadow: a sample of the other family near the gap's middle
-        cx0, cx1, cy0, cy1 = _cells(mx, my, cross_r, x0, y0, cell, gw, gh)
-        for cy in range(cy0, cy1 + 1):
-            for cx in range(cx0, cx1 + 1):
-                i0, i1 = _fam_items(cy * gw + cx, 3 - f, start, ncell)
-                for it in range(i0, i1):
-                    s = items[it]
-                    if (q[s, 0] - mx) ** 2 + (q[s, 1] - my) ** 2 <= cross_r * cross_r:
-                        hit = True
-        if not hit:
-            continue
-        mid = (a + b) // 2
-        sm = sid[mid]
-        qx, qy = q[sm, 0], q[sm, 1]
-        tx, ty = q[sid[b], 0] - q[sid[a], 0], q[sid[b], 1] - q[sid[a], 1]
-        half = 0.5 * math.hypot(tx, ty)
-        if half <= 0.0:
-            continue
-        tx /= 2.0 * half
-        ty /= 2.0 * half
-        reach_al = min(half, 0.5 * across_r)
-        cx0, cx1, cy0, cy1 = _cells(qx, qy, math.hypot(across_r, reach_al), x0, y0, cell, gw, gh)
-        near0 = across_r + 1.0
-        near1 = across_r + 1.0
-        s0 = -1
-        s1 = -1
-        for cy in range(cy0, cy1 + 1):
-            for cx in range(cx0, cx1 + 1):
-                i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
-                for it in range(i0, i1):
-                    s = items[it]
-                    dx, dy = q[s, 0] - qx, q[s, 1] - qy
-                    if abs(dx * tx + dy * ty) > reach_al:
-                        continue
-                    ac = dx * ty - dy * tx
-                    if ac <= -1.0:
-                        if -ac < near0:
-                            k = pos_of[s]
-                            if k >= 0 and piece[k] != p:
-                                near0 = -ac
-                                s0 = s
-                    elif ac >= 1.0 and ac < near1:
-                        k = pos_of[s]
-                        if k >= 0 and piece[k] != p:
-                            near1 = ac
-                            s1 = s
-        kn0 = _NONE
-        kn1 = _NONE
-        if s0 >= 0 and near0 <= across_r and math.isfinite(val[piece[pos_of[s0]]]):
-            kn0 = int(val[piece[pos_of[s0]]])
-        if s1 >= 0 and near1 <= across_r and math.isfinite(val[piece[pos_of[s1]]]):
-            kn1 = int(val[piece[pos_of[s1]]])
-        if kn0 == _NONE and kn1 == _NONE:
-            continue
-        cand[n_out] = p
-        kc[n_out, 0] = kn0 if kn0 != _NONE else kn1
-        kc[n_out, 1] = kn0
-        kc[n_out, 2] = kn1
-        nb[n_out, 0] = s0 if kn0 != _NONE else s1
-        nb[n_out, 1] = s1 if kn1 != _NONE else s0
-        cx_[n_out, 0] = mx
-        cx_[n_out, 1] = my
-        n_out += 1
-    cq = np.empty((4 * n_out, 2))
-    cf = np.empty(4 * n_out, np.intp)
-    ck = np.empty(4 * n_out, np.intp)
-    for i in range(n_out):
-        f = fam[sid[end_pos[cand[i]]]]
-        for j in range(2):
-            cq[4 * i + j, 0] = cx_[i, 0]
-            cq[4 * i + j, 1] = cx_[i, 1]
-            cf[4 * i + j] = f
-            ck[4 * i + j] = kc[i, 0] - 1 + 2 * j
-        for sd in range(2):
-            r = 4 * i + 2 + sd
-            s = nb[i, sd]
-            cq[r, 0] = q[s, 0]
-            cq[r, 1] = q[s, 1]
-            cf[r] = f
-            ck[r] = kc[i, 1 + sd] if kc[i, 1 + sd] != _NONE else kc[i, 0]
-    return cand[:n_out], kc[:n_out], nb[:n_out], end_pos, labelled, val, cq, cf, ck
-
-
-@njit
-def _k_one_verdicts(cand, kc, m, res, z, tol, margin, z_lo, z_hi, end_pos, n_p, sid, q, fam):
-    """`_verdicts` for one crossing (4 rows per candidate, `_k_one_crossing`): of the two lines beside the
-    neighbour's, the better scores within tol on its sheet inside [z_lo, z_hi] and the other at least margin·tol
-    (or leaves the depth range); it is next to every labelled neighbour line, each neighbour sample lies inside
-    the depth range on its own sheet in a cell beside the crossing's line m (m − 1, m or m + 1: with one crossing
-    the piece's cell is not known). Returns k_of, the number ambiguous and step 3's samples as `_verdicts`."""
-    nc = kc.shape[0]
-    k_of = np.full(nc, _NONE, np.int64)
-    amb = 0
-    tot = 0
-    for i in range(nc):
-        sc = np.full(2, np.inf)
-        for j in range(2):
-            r = 4 * i + j
-            if z[r] >= z_lo and z[r] <= z_hi:
-                sc[j] = res[r]
-        jb = 0 if sc[0] <= sc[1] else 1
-        if sc[jb] > tol:
-            continue
-        if sc[1 - jb] < margin * tol:
-            amb += 1
-            continue
-        k = kc[i, 0] - 1 + 2 * jb
-        mc = m[4 * i + jb]
-        ok = True
-        for sd in range(2):
-            kn = kc[i, 1 + sd]
-            if kn == _NONE:
-                continue
-            rn = 4 * i + 2 + sd
-            ok = ok and abs(k - kn) == 1 and abs(m[rn] - mc) <= 1 and z[rn] >= z_lo and z[rn] <= z_hi
-        if ok:
-            k_of[i] = k
-            p = cand[i]
-            tot += end_pos[n_p + p] - end_pos[p] + 1
-    pos = np.empty(tot, np.int64)
-    owner = np.empty(tot, np.int64)
-    qs = np.empty((tot, 2))
-    fs = np.empty(tot, np.int64)
-    ks = np.empty(tot, np.int64)
-    w = 0
-    for i in range(nc):
-        if k_of[i] == _NONE:
-            continue
-        p = cand[i]
-        for x in range(end_pos[p], end_pos[n_p + p] + 1):
-            s = sid[x]
-            pos[w] = x
-            owner[w] = i
-            qs[w, 0] = q[s, 0]
-            qs[w, 1] = q[s, 1]
-            fs[w] = fam[s]
-            ks[w] = k_of[i]
-            w += 1
-    return k_of, amb, pos, owner, qs, fs, ks
-
-
-def _label_one_crossing(q, fam, sid, piece, ts, tangent, index, seed_jid, *, model, depth_range_mm, grid, sigma_px, reach_px, across_px,
-                        mix_sigma, trim_px, tol_px, margin, lateral_px, min_samples, anchor) -> tuple[int, int, int]:
-    """One pass of the one-crossing candidates (`_k_one_crossing`, `_k_one_verdicts`, step 3 and the write as
-    `_k_write`). Returns pieces and samples written and the number ambiguous."""
-    n_p = int(piece[-1]) + 1
-    z_lo, z_hi = float(depth_range_mm[0]), float(depth_range_mm[1])
-    x0, y0, cell, gw, gh, start, items, pos_of = grid
-    cand, kc, nb, end_pos, labelled, val, cq, cf, ck = _k_one_crossing(q, fam, sid, piece, tangent, index, n_p, int(anchor), int(min_samples),
-                                                                      float(reach_px), float(lateral_px), float(mix_sigma * sigma_px),
-                                                                      float(across_px), x0, y0, cell, gw, gh, start, items, pos_of)
-    if len(cand) == 0:
-        return 0, 0, 0
-    _, z, m, res = model.sheet_check(cq, cf, ck)
-    k_of, n_amb, pos, owner, qs, fs, ks = _k_one_verdicts(cand, kc, np.asarray(m, np.int64), res, z, float(tol_px), float(margin), z_lo, z_hi,
-                                                          end_pos, n_p, sid, q, fam)
-    if len(pos) == 0:
-        return 0, 0, int(n_amb)
-    zs = model.sheet_depth(qs, fs, ks)
-    n_pieces, n_samples = _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, nb, end_pos, n_p, ts, sid, float(trim_px), index, seed_jid,
-                                   labelled, val, q, np.zeros(gw * gh, np.bool_), x0, y0, cell, gw, gh)
-    return int(n_pieces), int(n_samples), int(n_amb)
-
-
-def _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, *, grid, reach_px, lateral_px, anchor) -> int:
-    """`_k_ends` with label_beside_lines' arguments."""
+def _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, *, model, depth_range_mm, grid, reach_px, lateral_px, tol_px,
+                anchor) -> int:
+    """Decision 0106: the trimmed ends of the pieces this step labelled that face an unlabelled piece of their
+    line (`_k_end_rows`) take the piece's line where the line continues across the crossing on the piece's
+    sheet: the gap's middle lies within tol_px of a line m of the other family and the facing sample in the
+    same or the next cell (its nearest line m − 1, m or m + 1), both inside the depth range (a facing piece on
+    another surface, beyond a depth edge, lands elsewhere on this sheet). Returns the samples written."""
     n_p = int(piece[-1]) + 1
     x0, y0, cell, gw, gh, start, items, pos_of = grid
-    return int(_k_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, n_p, int(anchor), float(reach_px), float(lateral_px),
-                       x0, y0, cell, gw, gh, start, items, pos_of))
+    ends, rq, rf, rk, end_pos, val = _k_end_rows(q, fam, sid, piece, tangent, index, was_unlabelled, n_p, int(anchor), float(reach_px),
+                                                 float(lateral_px), x0, y0, cell, gw, gh, start, items, pos_of)
+    if len(ends) == 0:
+        return 0
+    _, z, m, res = model.sheet_check(rq, rf, rk)
+    z = z.reshape(-1, 2)
+    m = np.asarray(m, np.int64).reshape(-1, 2)
+    inside = np.all((z >= depth_range_mm[0]) & (z <= depth_range_mm[1]), axis=1)
+    keep = inside & (res[0::2] <= tol_px) & (np.abs(m[:, 1] - m[:, 0]) <= 1)
+    return int(_k_write_ends(ends, keep, end_pos, n_p, sid, index, seed_jid, val))
 
 
 def label_beside_lines(
@@ -966,7 +812,6 @@ def label_beside_lines(
     anchor: int = 3,
     rounds: int = 8,
     ends: bool = True,
-    one_crossing: bool = True,
 ) -> dict:
     """Label unlabelled pieces beside a labelled line of their family whose two crossings confirm the line on
     its own light sheet (module doc).
@@ -1007,18 +852,16 @@ def label_beside_lines(
             stats["left_out"] = dict(zip(("no_facing_piece", "no_crossing", "no_neighbour", "neighbour_unlabelled"), (int(c) for c in left)))
             _after_rounds(stats, q, fam, sid, piece, ts, tangent, index, seed_jid, was_unlabelled, model=model, depth_range_mm=depth_range_mm,
                           grid=grid, sigma_px=sigma_px, reach_px=reach_px, across_px=across_px, mix_sigma=mix_sigma, trim_px=trim_px,
-                          tol_px=tol_px, margin=margin, lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, ends=ends,
-                          one_crossing=one_crossing)
+                          tol_px=tol_px, margin=margin, lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, ends=ends)
             return stats
     # the NumPy path of RigModel (no camera table, or a pixel outside it): round by round
     return _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm, grid=grid,
                       sigma_px=sigma_px, reach_px=reach_px, across_px=across_px, mix_sigma=mix_sigma, trim_px=trim_px, tol_px=tol_px,
-                      margin=margin, lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, rounds=rounds, ends=ends,
-                      one_crossing=one_crossing)
+                      margin=margin, lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, rounds=rounds, ends=ends)
 
 
 def _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, *, model, depth_range_mm, grid, sigma_px, reach_px, across_px, mix_sigma,
-               trim_px, tol_px, margin, lateral_px, min_samples, anchor, rounds, ends=True, one_crossing=True) -> dict:
+               trim_px, tol_px, margin, lateral_px, min_samples, anchor, rounds, ends=True) -> dict:
     """`label_beside_lines` round by round through `RigModel.sheet_check` and `sheet_depth` (their NumPy path
     where the camera table does not cover a pixel): `_k_round`, `_k_verdicts`, `_k_write` per round, every
     piece's search repeated where it reaches a dirty cell. The same labels and counts as `_k_all` (checked by
@@ -1056,25 +899,16 @@ def _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, *, model, depth
         stats["samples"] += int(n_samples)
     _after_rounds(stats, q, fam, sid, piece, ts, tangent, index, seed_jid, was_unlabelled, model=model, depth_range_mm=depth_range_mm, grid=grid,
                   sigma_px=sigma_px, reach_px=reach_px, across_px=across_px, mix_sigma=mix_sigma, trim_px=trim_px, tol_px=tol_px, margin=margin,
-                  lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, ends=ends, one_crossing=one_crossing)
+                  lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, ends=ends)
     return stats
 
 
 def _after_rounds(stats, q, fam, sid, piece, ts, tangent, index, seed_jid, was_unlabelled, *, model, depth_range_mm, grid, sigma_px, reach_px,
-                  across_px, mix_sigma, trim_px, tol_px, margin, lateral_px, min_samples, anchor, ends, one_crossing) -> None:
-    """Decision 0106's passes after the rounds, into stats: the trimmed ends facing an unlabelled piece
-    (`_label_ends`, when ends), then the pieces with one crossing (`_label_one_crossing`, when one_crossing; their
-    ends stay trimmed)."""
+                  across_px, mix_sigma, trim_px, tol_px, margin, lateral_px, min_samples, anchor, ends) -> None:
+    """Decision 0106's pass after the rounds, into stats: the trimmed ends facing an unlabelled piece (`_label_ends`,
+    when ends)."""
     if ends:
-        stats["samples_ends"] = _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, grid=grid, reach_px=reach_px,
-                                            lateral_px=lateral_px, anchor=anchor)
+        stats["samples_ends"] = _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, model=model,
+                                            depth_range_mm=depth_range_mm, grid=grid, reach_px=reach_px, lateral_px=lateral_px, tol_px=tol_px,
+                                            anchor=anchor)
         stats["samples"] += stats["samples_ends"]
-    if one_crossing:
-        n_pc, n_sm, n_amb = _label_one_crossing(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
-                                                grid=grid, sigma_px=sigma_px, reach_px=reach_px, across_px=across_px, mix_sigma=mix_sigma,
-                                                trim_px=trim_px, tol_px=tol_px, margin=margin, lateral_px=lateral_px, min_samples=min_samples,
-                                                anchor=anchor)
-        stats["pieces"] += n_pc
-        stats["samples"] += n_sm
-        stats["ambiguous"] += n_amb
-        stats["samples_one_crossing"] = n_sm
