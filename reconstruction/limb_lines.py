@@ -746,23 +746,36 @@ def _k_end_rows(q, fam, sid, piece, tangent, index, was_unlabelled, n_p, anchor,
 
 
 @njit
-def _k_write_ends(ends, keep, end_pos, n_p, sid, index, seed_jid, val):
+def _k_write_ends(ends, keep, end_pos, n_p, sid, index, seed_jid, val, q, anchor, lateral):
     """The trimmed samples of the kept ends (keep (ne,) bool) take their piece's line and the junction of the
-    first labelled sample inside the end. Returns the samples written."""
+    first labelled sample inside the end, from that sample outwards while each lies within lateral px of the
+    line through it and the sample `anchor` further inside (a sample the crossing's light pulls off the line, or
+    one past a silhouette, stops the end). Returns the samples written."""
     n_s = 0
     for e in range(ends.shape[0]):
         if not keep[e]:
             continue
         p, side, inner = ends[e, 0], ends[e, 1], ends[e, 2]
-        x = end_pos[p] if side == 0 else end_pos[n_p + p]
+        a, b = end_pos[p], end_pos[n_p + p]
         step = 1 if side == 0 else -1
-        jid = seed_jid[sid[inner]]
-        while x != inner:  # the samples 0103's trim left out (all within trim_px of the end)
+        far = min(max(inner + step * anchor, a), b)
+        si, sf = sid[inner], sid[far]
+        dx, dy = q[si, 0] - q[sf, 0], q[si, 1] - q[sf, 1]
+        L = math.sqrt(dx * dx + dy * dy)
+        if L < 1.0:
+            continue
+        dx /= L
+        dy /= L
+        jid = seed_jid[si]
+        x = inner - step
+        while x >= a and x <= b:  # the samples 0103's trim left out (all within trim_px of the end)
             s = sid[x]
+            if abs((q[s, 0] - q[si, 0]) * dy - (q[s, 1] - q[si, 1]) * dx) > lateral:
+                break
             index[s] = val[p]
             seed_jid[s] = jid
             n_s += 1
-            x += step
+            x -= step
     return n_s
 
 
@@ -772,7 +785,8 @@ def _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, *,
     line (`_k_end_rows`) take the piece's line where the line continues across the crossing on the piece's
     sheet: the gap's middle lies within tol_px of a line m of the other family and the facing sample in the
     same or the next cell (its nearest line m − 1, m or m + 1), both inside the depth range (a facing piece on
-    another surface, beyond a depth edge, lands elsewhere on this sheet). Returns the samples written."""
+    another surface, beyond a depth edge, lands elsewhere on this sheet); each sample on the piece's line within
+    lateral_px (`_k_write_ends`). Returns the samples written."""
     n_p = int(piece[-1]) + 1
     x0, y0, cell, gw, gh, start, items, pos_of = grid
     ends, rq, rf, rk, end_pos, val = _k_end_rows(q, fam, sid, piece, tangent, index, was_unlabelled, n_p, int(anchor), float(reach_px),
@@ -784,7 +798,7 @@ def _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, *,
     m = np.asarray(m, np.int64).reshape(-1, 2)
     inside = np.all((z >= depth_range_mm[0]) & (z <= depth_range_mm[1]), axis=1)
     keep = inside & (res[0::2] <= tol_px) & (np.abs(m[:, 1] - m[:, 0]) <= 1)
-    return int(_k_write_ends(ends, keep, end_pos, n_p, sid, index, seed_jid, val))
+    return int(_k_write_ends(ends, keep, end_pos, n_p, sid, index, seed_jid, val, q, int(anchor), float(lateral_px)))
 
 
 def label_beside_lines(
