@@ -36,6 +36,13 @@ The samples within `trim_px` of P's ends are left out (the crossings' light pull
 filling and the crossing fill put points there where the line is labelled on both sides). Repeated for `rounds`
 rounds: pieces labelled in one round are the neighbour lines of the next (the band is a few lines wide).
 
+After the rounds (decision 0106, `ends`): an end of a piece labelled here whose facing piece is still unlabelled
+gets no gap filling, so its trimmed samples take P's line where the line continues across that crossing on P's
+sheet (the gap's middle within `tol_px` of a line m of the other family, the facing sample nearest to m − 1, m or
+m + 1, both inside the depth range), each of them within `lateral_px` of the line through the first labelled
+sample inside the end (`_k_end_rows`, `RigModel.sheet_check`, `_k_write_ends`). Where the facing piece carries a
+line, the trim stands (the fillings' case, or a conflict).
+
 Kernels: every round in one compiled call (`_k_all`, decision 0103's "speed, round 2"): the pieces' ends and
 labels (`_k_pieces`), then per round steps 1 and 2's geometry on the frame's bucket grid split by family
 (`labelling._sample_grid`) over the pieces that can still become candidates (`_k_live_round`: each piece's
