@@ -627,6 +627,8 @@ class TraceOptions:
         middles of the gaps the mixing zone cuts, land on consecutive lines of the other family on its own sheet
         within cross_residual_px for one of the two and miss by twice that for the other, the neighbour in the same
         cell (`reconstruction.limb_lines`, decision 0103: compressed bands at a limb).
+    beside_lines_ends: with beside_lines, the samples its trim leaves at an end of a piece it labelled whose
+        facing piece stays unlabelled take the piece's line (no gap filling reaches them; decision 0106).
     t_nodes: piece_junctions' nodes with one family through (T's) join its graph; the through line's pieces
         at a T are labelled only at the pattern's rim (`reconstruction.t_nodes`, decision 0098).
     """
@@ -664,6 +666,7 @@ class TraceOptions:
     surface_radius: float = 1.0
     t_nodes: bool = True
     beside_lines: bool = True
+    beside_lines_ends: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -1113,7 +1116,7 @@ def label_samples(
                                                                     min_angle_deg=options.continue_gap_deg or 45.0),
                                     across_px=model.junction_step_cam_px, trim_px=options.cross_trim_sigma * sigma_px,
                                     tol_px=options.cross_residual_px, lateral_px=options.seed_lateral_px * cell,
-                                    min_samples=options.cross_min_samples, anchor=options.fill_anchor)
+                                    min_samples=options.cross_min_samples, anchor=options.fill_anchor, ends=options.beside_lines_ends)
             stats["samples_beside_lines"] = bl["samples"]
         if options.far_end_check and model is not None and grid is not None:
             # a seeded trace that ran across a depth edge onto a collinear line of another surface: the

@@ -36,6 +36,13 @@ The samples within `trim_px` of P's ends are left out (the crossings' light pull
 filling and the crossing fill put points there where the line is labelled on both sides). Repeated for `rounds`
 rounds: pieces labelled in one round are the neighbour lines of the next (the band is a few lines wide).
 
+After the rounds (decision 0106, `ends`): an end of a piece labelled here whose facing piece is still unlabelled
+gets no gap filling, so its trimmed samples take P's line where the line continues across that crossing on P's
+sheet (the gap's middle within `tol_px` of a line m of the other family, the facing sample nearest to m − 1, m or
+m + 1, both inside the depth range), each of them within `lateral_px` of the line through the first labelled
+sample inside the end (`_k_end_rows`, `RigModel.sheet_check`, `_k_write_ends`). Where the facing piece carries a
+line, the trim stands (the fillings' case, or a conflict).
+
 Kernels: every round in one compiled call (`_k_all`, decision 0103's "speed, round 2"): the pieces' ends and
 labels (`_k_pieces`), then per round steps 1 and 2's geometry on the frame's bucket grid split by family
 (`labelling._sample_grid`) over the pieces that can still become candidates (`_k_live_round`: each piece's
@@ -132,6 +139,31 @@ def _end(p, side, n_p, end_pos, q, sid, tangent, anchor):
 
 
 @njit
+def _facing(p, ex, ey, ux, uy, q, piece, f, reach, lateral, x0, y0, cell, gw, gh, start, items, pos_of):
+    """The facing sample of piece p's end at (ex, ey) with outward direction (ux, uy): the nearest trace sample of
+    family f on another piece ahead, within reach along and lateral + sin 12° of its distance across the end's
+    tangent (the first sample of the next piece of the line); −1: none."""
+    ncell = gw * gh
+    best = reach + 1.0
+    sb = -1
+    cx0, cx1, cy0, cy1 = _cells(ex + 0.5 * reach * ux, ey + 0.5 * reach * uy, 0.5 * reach + lateral + _BEND * reach, x0, y0, cell, gw, gh)
+    for cy in range(cy0, cy1 + 1):
+        for cx in range(cx0, cx1 + 1):
+            i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
+            for it in range(i0, i1):
+                s = items[it]
+                k = pos_of[s]
+                if k < 0 or piece[k] == p:
+                    continue
+                dx, dy = q[s, 0] - ex, q[s, 1] - ey
+                al = dx * ux + dy * uy
+                if al > 0.0 and al <= reach and al < best and abs(dx * uy - dy * ux) <= lateral + _BEND * al:
+                    best = al
+                    sb = s
+    return sb
+
+
+@njit
 def _crossings(p, q, fam, sid, piece, tangent, end_pos, anchor, n_p, f, reach, lateral, cross_r, x0, y0, cell, gw, gh, start, items, pos_of, cr):
     """Step 2 for piece p (family f): its two gap middles into cr[p]; 0 when both are found, 1 when an end has
     no facing piece of its line within reach, 2 when a gap has no sample of the other family within cross_r
@@ -140,26 +172,10 @@ def _crossings(p, q, fam, sid, piece, tangent, end_pos, anchor, n_p, f, reach, l
     for side in range(2):
         ex, ey, ux, uy = _end(p, side, n_p, end_pos, q, sid, tangent, anchor)
         # the facing sample of the same family ahead: the first of the next piece of the line
-        best = reach + 1.0
-        bx = 0.0
-        by = 0.0
-        cx0, cx1, cy0, cy1 = _cells(ex + 0.5 * reach * ux, ey + 0.5 * reach * uy, 0.5 * reach + lateral + _BEND * reach, x0, y0, cell, gw, gh)
-        for cy in range(cy0, cy1 + 1):
-            for cx in range(cx0, cx1 + 1):
-                i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
-                for it in range(i0, i1):
-                    s = items[it]
-                    k = pos_of[s]
-                    if k < 0 or piece[k] == p:
-                        continue
-                    dx, dy = q[s, 0] - ex, q[s, 1] - ey
-                    al = dx * ux + dy * uy
-                    if al > 0.0 and al <= reach and al < best and abs(dx * uy - dy * ux) <= lateral + _BEND * al:
-                        best = al
-                        bx, by = q[s, 0], q[s, 1]
-        if best > reach:
+        sb = _facing(p, ex, ey, ux, uy, q, piece, f, reach, lateral, x0, y0, cell, gw, gh, start, items, pos_of)
+        if sb < 0:
             return 1
-        mx, my = 0.5 * (ex + bx), 0.5 * (ey + by)
+        mx, my = 0.5 * (ex + q[sb, 0]), 0.5 * (ey + q[sb, 1])
         # a crossing, not a silhouette or a shadow: a sample of the other family near the gap's middle
         hit = False
         cx0, cx1, cy0, cy1 = _cells(mx, my, cross_r, x0, y0, cell, gw, gh)
@@ -684,6 +700,114 @@ def _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_sa
     return ok, n_pieces, n_samples, n_amb, left
 
 
+@njit
+def _k_end_rows(q, fam, sid, piece, tangent, index, was_unlabelled, n_p, anchor, reach, lateral, x0, y0, cell, gw, gh, start, items, pos_of):
+    """The ends of the pieces this step labelled (decision 0106) whose facing piece (`_facing`, as step 2 found
+    it) is unlabelled after the rounds: where the facing piece carries the piece's line the gap fillings put
+    points through the crossing (0103's trim stands), where it carries another line the end stays trimmed too.
+    was_unlabelled (P,) bool: index was NaN before the step (the step labels only pieces without a label).
+    Returns per end (ne,): piece, side, the first labelled trace position inside it (the samples before it are
+    the trimmed ones), and the rows of the sheet check on the piece's sheet, 2 per end: the gap's middle, then
+    the facing sample: pixels (2·ne, 2), family and line (2·ne,)."""
+    end_pos, labelled, val = _k_pieces(sid, piece, index, n_p)
+    n = sid.shape[0]
+    mine = np.zeros(n_p, np.bool_)
+    for x in range(n):
+        s = sid[x]
+        if was_unlabelled[s] and math.isfinite(index[s]):
+            mine[piece[x]] = True
+    ends = np.empty((2 * n_p, 3), np.intp)
+    rq = np.empty((4 * n_p, 2))
+    rf = np.empty(4 * n_p, np.intp)
+    rk = np.empty(4 * n_p, np.intp)
+    ne = 0
+    for p in range(n_p):
+        if not mine[p]:
+            continue
+        a, b = end_pos[p], end_pos[n_p + p]
+        f = fam[sid[a]]
+        for side in range(2):
+            ex, ey, ux, uy = _end(p, side, n_p, end_pos, q, sid, tangent, anchor)
+            sb = _facing(p, ex, ey, ux, uy, q, piece, f, reach, lateral, x0, y0, cell, gw, gh, start, items, pos_of)
+            if sb < 0 or labelled[piece[pos_of[sb]]]:
+                continue
+            x = a if side == 0 else b
+            step = 1 if side == 0 else -1
+            inner = x
+            while inner >= a and inner <= b and not math.isfinite(index[sid[inner]]):
+                inner += step
+            if inner < a or inner > b or inner == x:
+                continue
+            ends[ne, 0] = p
+            ends[ne, 1] = side
+            ends[ne, 2] = inner
+            rq[2 * ne, 0] = 0.5 * (ex + q[sb, 0])
+            rq[2 * ne, 1] = 0.5 * (ey + q[sb, 1])
+            rq[2 * ne + 1, 0] = q[sb, 0]
+            rq[2 * ne + 1, 1] = q[sb, 1]
+            for r in range(2):
+                rf[2 * ne + r] = f
+                rk[2 * ne + r] = int(val[p])
+            ne += 1
+    return ends[:ne], rq[: 2 * ne], rf[: 2 * ne], rk[: 2 * ne], end_pos, val
+
+
+@njit
+def _k_write_ends(ends, keep, end_pos, n_p, sid, index, seed_jid, val, q, anchor, lateral):
+    """The trimmed samples of the kept ends (keep (ne,) bool) take their piece's line and the junction of the
+    first labelled sample inside the end, from that sample outwards while each lies within lateral px of the
+    line through it and the sample `anchor` further inside (a sample the crossing's light pulls off the line, or
+    one past a silhouette, stops the end). Returns the samples written."""
+    n_s = 0
+    for e in range(ends.shape[0]):
+        if not keep[e]:
+            continue
+        p, side, inner = ends[e, 0], ends[e, 1], ends[e, 2]
+        a, b = end_pos[p], end_pos[n_p + p]
+        step = 1 if side == 0 else -1
+        far = min(max(inner + step * anchor, a), b)
+        si, sf = sid[inner], sid[far]
+        dx, dy = q[si, 0] - q[sf, 0], q[si, 1] - q[sf, 1]
+        L = math.sqrt(dx * dx + dy * dy)
+        if L < 1.0:
+            continue
+        dx /= L
+        dy /= L
+        jid = seed_jid[si]
+        x = inner - step
+        while x >= a and x <= b:  # the samples 0103's trim left out (all within trim_px of the end)
+            s = sid[x]
+            if abs((q[s, 0] - q[si, 0]) * dy - (q[s, 1] - q[si, 1]) * dx) > lateral:
+                break
+            index[s] = val[p]
+            seed_jid[s] = jid
+            n_s += 1
+            x -= step
+    return n_s
+
+
+def _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, *, model, depth_range_mm, grid, reach_px, lateral_px, tol_px,
+                anchor) -> int:
+    """Decision 0106: the trimmed ends of the pieces this step labelled that face an unlabelled piece of their
+    line (`_k_end_rows`) take the piece's line where the line continues across the crossing on the piece's
+    sheet: the gap's middle lies within tol_px of a line m of the other family and the facing sample in the
+    same or the next cell (its nearest line m − 1, m or m + 1), both inside the depth range (a facing piece on
+    another surface, beyond a depth edge, lands elsewhere on this sheet); each sample on the piece's line within
+    lateral_px (`_k_write_ends`). Returns the samples written."""
+    n_p = int(piece[-1]) + 1
+    x0, y0, cell, gw, gh, start, items, pos_of = grid
+    ends, rq, rf, rk, end_pos, val = _k_end_rows(q, fam, sid, piece, tangent, index, was_unlabelled, n_p, int(anchor), float(reach_px),
+                                                 float(lateral_px), x0, y0, cell, gw, gh, start, items, pos_of)
+    if len(ends) == 0:
+        return 0
+    _, z, m, res = model.sheet_check(rq, rf, rk)
+    z = z.reshape(-1, 2)
+    m = np.asarray(m, np.int64).reshape(-1, 2)
+    inside = np.all((z >= depth_range_mm[0]) & (z <= depth_range_mm[1]), axis=1)
+    keep = inside & (res[0::2] <= tol_px) & (np.abs(m[:, 1] - m[:, 0]) <= 1)
+    return int(_k_write_ends(ends, keep, end_pos, n_p, sid, index, seed_jid, val, q, int(anchor), float(lateral_px)))
+
+
 def label_beside_lines(
     q: np.ndarray,
     fam: np.ndarray,
@@ -708,6 +832,7 @@ def label_beside_lines(
     min_samples: int = 4,
     anchor: int = 3,
     rounds: int = 8,
+    ends: bool = True,
 ) -> dict:
     """Label unlabelled pieces beside a labelled line of their family whose two crossings confirm the line on
     its own light sheet (module doc).
@@ -735,6 +860,7 @@ def label_beside_lines(
     if len(start) != 2 * gw * gh + 1:
         raise ValueError("label_beside_lines needs the bucket grid split by family: build it with labelling._sample_grid(..., fam)")
     fixed = model._sheet_check_args
+    was_unlabelled = np.isnan(index)
     if fixed is not None:
         ok, n_pieces, n_samples, n_amb, left = _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, int(anchor), int(min_samples),
                                                       float(reach_px), float(lateral_px), float(mix_sigma * sigma_px), float(across_px),
@@ -745,15 +871,18 @@ def label_beside_lines(
             stats["samples"] = int(n_samples)
             stats["ambiguous"] = int(n_amb)
             stats["left_out"] = dict(zip(("no_facing_piece", "no_crossing", "no_neighbour", "neighbour_unlabelled"), (int(c) for c in left)))
+            _after_rounds(stats, q, fam, sid, piece, ts, tangent, index, seed_jid, was_unlabelled, model=model, depth_range_mm=depth_range_mm,
+                          grid=grid, sigma_px=sigma_px, reach_px=reach_px, across_px=across_px, mix_sigma=mix_sigma, trim_px=trim_px,
+                          tol_px=tol_px, margin=margin, lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, ends=ends)
             return stats
     # the NumPy path of RigModel (no camera table, or a pixel outside it): round by round
     return _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm, grid=grid,
                       sigma_px=sigma_px, reach_px=reach_px, across_px=across_px, mix_sigma=mix_sigma, trim_px=trim_px, tol_px=tol_px,
-                      margin=margin, lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, rounds=rounds)
+                      margin=margin, lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, rounds=rounds, ends=ends)
 
 
 def _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, *, model, depth_range_mm, grid, sigma_px, reach_px, across_px, mix_sigma,
-               trim_px, tol_px, margin, lateral_px, min_samples, anchor, rounds) -> dict:
+               trim_px, tol_px, margin, lateral_px, min_samples, anchor, rounds, ends=True) -> dict:
     """`label_beside_lines` round by round through `RigModel.sheet_check` and `sheet_depth` (their NumPy path
     where the camera table does not cover a pixel): `_k_round`, `_k_verdicts`, `_k_write` per round, every
     piece's search repeated where it reaches a dirty cell. The same labels and counts as `_k_all` (checked by
@@ -762,6 +891,7 @@ def _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, *, model, depth
     n_p = int(piece[-1]) + 1
     z_lo, z_hi = float(depth_range_mm[0]), float(depth_range_mm[1])
     x0, y0, cell, gw, gh, start, items, pos_of = grid
+    was_unlabelled = np.isnan(index)
     end_pos, labelled, val = _k_pieces(sid, piece, index, n_p)
     why = np.full(n_p, 6, np.int8)
     cr = np.zeros((n_p, 2, 2))
@@ -788,4 +918,18 @@ def _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, *, model, depth
             break
         stats["pieces"] += int(n_pieces)
         stats["samples"] += int(n_samples)
+    _after_rounds(stats, q, fam, sid, piece, ts, tangent, index, seed_jid, was_unlabelled, model=model, depth_range_mm=depth_range_mm, grid=grid,
+                  sigma_px=sigma_px, reach_px=reach_px, across_px=across_px, mix_sigma=mix_sigma, trim_px=trim_px, tol_px=tol_px, margin=margin,
+                  lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, ends=ends)
     return stats
+
+
+def _after_rounds(stats, q, fam, sid, piece, ts, tangent, index, seed_jid, was_unlabelled, *, model, depth_range_mm, grid, sigma_px, reach_px,
+                  across_px, mix_sigma, trim_px, tol_px, margin, lateral_px, min_samples, anchor, ends) -> None:
+    """Decision 0106's pass after the rounds, into stats: the trimmed ends facing an unlabelled piece (`_label_ends`,
+    when ends)."""
+    if ends:
+        stats["samples_ends"] = _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, model=model,
+                                            depth_range_mm=depth_range_mm, grid=grid, reach_px=reach_px, lateral_px=lateral_px, tol_px=tol_px,
+                                            anchor=anchor)
+        stats["samples"] += stats["samples_ends"]

@@ -16,6 +16,7 @@ import reconstruction.labelling as labelling_module
 from reconstruction.limb_lines import _NONE, _ROWS, _by_rounds, _crossings, _k_all, _k_pieces, _k_verdicts, label_beside_lines
 from reconstruction.rigmodel import UNLABELLED, rig_model
 
+from tests.reconstruction.test_recon_limb_outer import one_object_around
 from tests.reconstruction.test_recon_surface_labels import _object_at, _true_index
 
 
@@ -167,6 +168,7 @@ def test_labels_beside_the_sphere_silhouette_are_true(stage16, keep_object):
     new = np.isfinite(on.index) & ~np.isfinite(off.index)
     other = _object_at(s.truth, obs.q) != keep_object
     assert np.sum(new & other) >= 100
+    new &= one_object_around(s.truth, obs.q)  # the bilinear truth mixes two surfaces within 1 px of the silhouette (decision 0106)
     t = _true_index(s.truth, s.pattern, obs.q[new], np.asarray(obs.family)[new])
     ok = np.isfinite(t)
     assert ok.mean() > 0.95
