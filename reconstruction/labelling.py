@@ -69,7 +69,7 @@ class LabelOptions:
     depth_min_mm: float = 100.0
     depth_max_mm: float = 10000.0
     min_inside_fraction: float = 0.9
-    residual_cap_px: float = 3.0
+    residual_cap_px: float = 1.0
     noise_floor_px: float = 0.15
     ambiguity_chi2: float = 25.0
     min_rms_ratio: float = 1.5
