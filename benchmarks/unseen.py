@@ -16,7 +16,8 @@ Each seed draws:
 The working volume is the scene's depth range (`drivers.sim.presets.depth_range`), as for the presets. The table
 gives every scene's points, coverage (`benchmarks._common.coverage_lines`), the relative 3-D error (median, p99,
 share > 1 %) and the pipeline's warnings: "ill-posed" when the rig's labelling margin is under 0.1 projector px,
-"left out" when most junctions could not be labelled. A scene with no usable grid (e.g. a grid seen edge on)
+"few junctions" when lines were found but their crossings mostly not, "left out" when most junctions could not be
+labelled. A scene with no usable grid (e.g. a grid seen edge on)
 shows up as "no points" with its warning. Writes benchmarks/results/unseen.md.
 """
 
@@ -104,6 +105,7 @@ def run(seeds) -> list[dict]:
             rel = np.linalg.norm(res.points_proj - p_true, axis=1) / np.linalg.norm(p_true, axis=1) * 100
         rel = rel[np.isfinite(rel)]
         warn = ("ill-posed" if any("ill-posed" in w for w in res.warnings) else
+                "few junctions" if any("line samples but only" in w for w in res.warnings) else
                 "left out" if any("could not label" in w or "left out as ambiguous" in w for w in res.warnings) else "")
         row = {"seed": seed, "rig": rig, "objects": len(scene.objects) - 1, "pitch": pattern.pitch_px,
                "angles": f"{pattern.alpha1_deg:.0f}/{pattern.alpha2_deg:.0f}", "noise": noise, "points": res.n_points,

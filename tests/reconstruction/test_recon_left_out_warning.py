@@ -5,7 +5,7 @@ label any of them"."""
 
 from __future__ import annotations
 
-from reconstruction.pipeline import left_out_warning
+from reconstruction.pipeline import few_junctions_warning, left_out_warning
 from reconstruction.placement import LabellingMargin
 
 _MARGINAL = LabellingMargin(0.11, (1, -1), 785.0)
@@ -37,3 +37,14 @@ def test_most_junctions_ambiguous_warns_even_when_some_are_labelled():
     assert left_out_warning(1000, 900, {"ambiguous": 100}, _GOOD) is None
     # a good margin gives no advice: the reason stands alone
     assert "depth range" not in left_out_warning(10, 0, {"ambiguous": 10}, _GOOD)
+
+
+def test_many_samples_and_few_junctions_warn_about_crossings_not_found():
+    # the unseen scene: 18 378 samples, 5 junctions, junction step 13.5 px, full-resolution sampling
+    w = few_junctions_warning(18378, 5, 13.5, 1)
+    assert w.startswith("found 18378 line samples but only 5 junctions") and "coarser pitch" in w
+    # the benchmark scenes: 1.6-2.6 times the expected samples per junction
+    assert few_junctions_warning(30946, 729, 13.0, 1) is None
+    assert few_junctions_warning(4153, 26, 63.0, 2) is None
+    # too few samples to say anything
+    assert few_junctions_warning(900, 1, 13.5, 1) is None
