@@ -115,6 +115,7 @@ def elevated_pieces(members, residual, bad, start, nbr, pos, factor, floor_px, m
         # connected groups of elevated junctions; those of at least min_cluster are taken out
         group = np.full(m, -1, np.intp)
         stack = np.empty(m, np.intp)
+        members_g = np.empty(m, np.intp)  # the current group's positions
         taken = np.zeros(m, np.bool_)
         for k in range(m):
             if not elev[k] or group[k] >= 0:
@@ -122,7 +123,6 @@ def elevated_pieces(members, residual, bad, start, nbr, pos, factor, floor_px, m
             group[k] = k
             stack[0] = k
             ns = 1
-            members_g = np.empty(m, np.intp)
             ng = 0
             while ns > 0:
                 ns -= 1
