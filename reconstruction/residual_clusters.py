@@ -63,6 +63,30 @@ def _median(x, n):
 
 
 @njit
+def _flood(k, allowed, mark, members, start, nbr, pos, stack, found):
+    """The connected set of component positions reachable from k over kept edges through `allowed` positions not
+    yet marked: marks them with k (mark (m,), −1 = unmarked), lists them in found[:n] and returns n. stack: work
+    space (m,)."""
+    mark[k] = k
+    stack[0] = k
+    ns = 1
+    n = 0
+    while ns > 0:
+        ns -= 1
+        c = stack[ns]
+        found[n] = c
+        n += 1
+        j = members[c]
+        for t in range(start[j], start[j + 1]):
+            p = pos[nbr[t]]
+            if p >= 0 and allowed[p] and mark[p] < 0:
+                mark[p] = k
+                stack[ns] = p
+                ns += 1
+    return n
+
+
+@njit
 def elevated_pieces(members, residual, bad, start, nbr, pos, factor, floor_px, min_cluster):
     """For one accepted component (members (m,) junction ids, residual (M,) its residuals in projector px, NaN
     where none; bad (m,) the outliers already found), the junctions to take out as well (module doc).
@@ -118,27 +142,11 @@ def elevated_pieces(members, residual, bad, start, nbr, pos, factor, floor_px, m
         members_g = np.empty(m, np.intp)  # the current group's positions
         taken = np.zeros(m, np.bool_)
         for k in range(m):
-            if not elev[k] or group[k] >= 0:
-                continue
-            group[k] = k
-            stack[0] = k
-            ns = 1
-            ng = 0
-            while ns > 0:
-                ns -= 1
-                c = stack[ns]
-                members_g[ng] = c
-                ng += 1
-                j = members[c]
-                for t in range(start[j], start[j + 1]):
-                    p = pos[nbr[t]]
-                    if p >= 0 and elev[p] and group[p] < 0:
-                        group[p] = k
-                        stack[ns] = p
-                        ns += 1
-            if ng >= min_cluster:
-                for h in range(ng):
-                    taken[members_g[h]] = True
+            if elev[k] and group[k] < 0:
+                ng = _flood(k, elev, group, members, start, nbr, pos, stack, members_g)
+                if ng >= min_cluster:
+                    for h in range(ng):
+                        taken[members_g[h]] = True
         n_taken = 0
         for k in range(m):
             if taken[k]:
@@ -147,32 +155,18 @@ def elevated_pieces(members, residual, bad, start, nbr, pos, factor, floor_px, m
         if n_taken > 0:
             # the rest in connected pieces: the largest keeps the offset, and so does every piece larger than the
             # groups taken out (a part joined across a depth edge is the group and its fringe)
+            rest = ~out
             piece = np.full(m, -1, np.intp)
             size = np.zeros(m, np.intp)
             best = -1
             best_n = 0
             for k in range(m):
-                if out[k] or piece[k] >= 0:
-                    continue
-                piece[k] = k
-                stack[0] = k
-                ns = 1
-                cnt = 0
-                while ns > 0:
-                    ns -= 1
-                    c = stack[ns]
-                    cnt += 1
-                    j = members[c]
-                    for t in range(start[j], start[j + 1]):
-                        p = pos[nbr[t]]
-                        if p >= 0 and not out[p] and piece[p] < 0:
-                            piece[p] = k
-                            stack[ns] = p
-                            ns += 1
-                size[k] = cnt
-                if cnt > best_n:
-                    best_n = cnt
-                    best = k
+                if rest[k] and piece[k] < 0:
+                    cnt = _flood(k, rest, piece, members, start, nbr, pos, stack, members_g)
+                    size[k] = cnt
+                    if cnt > best_n:
+                        best_n = cnt
+                        best = k
             for k in range(m):
                 if not out[k] and piece[k] != best and size[piece[k]] <= n_taken:
                     out[k] = True
