@@ -199,6 +199,53 @@ def _crossings(p, q, fam, sid, piece, tangent, end_pos, anchor, n_p, f, reach, l
 
 
 @njit
+def _axis(a, b, sid, q, across_r):
+    """A piece's search frame (trace positions a … b): its middle sample (qx, qy), the unit chord (tx, ty) from its
+    first to its last sample and how far along it the search reaches (half the chord, at most across_r / 2: beside
+    the piece's middle, not the whole length of a long piece). ok False for a piece of zero length."""
+    sm = sid[(a + b) // 2]
+    qx, qy = q[sm, 0], q[sm, 1]
+    tx, ty = q[sid[b], 0] - q[sid[a], 0], q[sid[b], 1] - q[sid[a], 1]
+    half = 0.5 * math.hypot(tx, ty)
+    if half <= 0.0:
+        return False, qx, qy, tx, ty, 0.0
+    return True, qx, qy, tx / (2.0 * half), ty / (2.0 * half), min(half, 0.5 * across_r)
+
+
+@njit
+def _beside(p, f, qx, qy, tx, ty, reach_al, across_r, cx0, cx1, cy0, cy1, q, piece, pos_of, gw, gh, start, items):
+    """The nearest trace sample of family f on another piece on each side of piece p's middle (qx, qy), within
+    reach_al along its chord (tx, ty) and at least 1 px across, in cells cx0 … cx1, cy0 … cy1: (s0, near0) on the
+    left, (s1, near1) on the right (−1 and across_r + 1 where none)."""
+    ncell = gw * gh
+    near0 = across_r + 1.0
+    near1 = across_r + 1.0
+    s0 = -1
+    s1 = -1
+    for cy in range(cy0, cy1 + 1):
+        for cx in range(cx0, cx1 + 1):
+            i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
+            for it in range(i0, i1):  # the geometric tests first, then whether the sample is another piece's
+                s = items[it]
+                dx, dy = q[s, 0] - qx, q[s, 1] - qy
+                if abs(dx * tx + dy * ty) > reach_al:
+                    continue
+                ac = dx * ty - dy * tx
+                if ac <= -1.0:
+                    if -ac < near0:
+                        k = pos_of[s]
+                        if k >= 0 and piece[k] != p:
+                            near0 = -ac
+                            s0 = s
+                elif ac >= 1.0 and ac < near1:
+                    k = pos_of[s]
+                    if k >= 0 and piece[k] != p:
+                        near1 = ac
+                        s1 = s
+    return s0, near0, s1, near1
+
+
+@njit
 def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, anchor, min_samples, reach, lateral, cross_r, across_r,
              dirty, first_round, x0, y0, cell, gw, gh, start, items, pos_of):
     """One round of steps 1 and 2 over the unlabelled pieces of at least min_samples samples. Step 1: the
@@ -214,7 +261,6 @@ def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, 
     where one side has none), and the rows of the sheet check, _ROWS per candidate piece:
     its two crossings on the sheets centre − 1, centre, centre + 1, then each side's neighbour sample on its own
     sheet (the other side's where one side has none): pixels (_ROWS·nc, 2), family and line (_ROWS·nc,)."""
-    ncell = gw * gh
     cand = np.empty(n_p, np.intp)
     kc = np.empty((n_p, 3), np.int64)  # the centre line, then each side's neighbour line (_NONE: none)
     nb = np.empty((n_p, 2), np.intp)  # each side's neighbour sample (the other side's where none)
@@ -230,17 +276,10 @@ def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, 
         elif labelled[p]:
             continue
         f = fam[sid[a]]
-        mid = (a + b) // 2
-        sm = sid[mid]
-        qx, qy = q[sm, 0], q[sm, 1]
-        tx, ty = q[sid[b], 0] - q[sid[a], 0], q[sid[b], 1] - q[sid[a], 1]
-        half = 0.5 * math.hypot(tx, ty)
-        if half <= 0.0:
+        ok, qx, qy, tx, ty, reach_al = _axis(a, b, sid, q, across_r)
+        if not ok:
             why[p] = 5
             continue
-        tx /= 2.0 * half
-        ty /= 2.0 * half
-        reach_al = min(half, 0.5 * across_r)  # beside the piece's middle (long pieces: not their whole length)
         cx0, cx1, cy0, cy1 = _cells(qx, qy, math.hypot(across_r, reach_al), x0, y0, cell, gw, gh)
         if not first_round:
             seen = False
@@ -249,29 +288,8 @@ def _k_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, n_p, 
                     seen = seen or dirty[cy * gw + cx]
             if not seen:
                 continue
-        near0 = across_r + 1.0
-        near1 = across_r + 1.0
-        s0 = -1
-        s1 = -1
-        for cy in range(cy0, cy1 + 1):
-            for cx in range(cx0, cx1 + 1):
-                i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
-                for it in range(i0, i1):
-                    s = items[it]
-                    k = pos_of[s]
-                    if k < 0 or piece[k] == p:
-                        continue
-                    dx, dy = q[s, 0] - qx, q[s, 1] - qy
-                    if abs(dx * tx + dy * ty) > reach_al:
-                        continue
-                    ac = dx * ty - dy * tx
-                    if ac <= -1.0:
-                        if -ac < near0:
-                            near0 = -ac
-                            s0 = s
-                    elif ac >= 1.0 and ac < near1:
-                        near1 = ac
-                        s1 = s
+        s0, near0, s1, near1 = _beside(p, f, qx, qy, tx, ty, reach_al, across_r, cx0, cx1, cy0, cy1, q, piece, pos_of, gw, gh, start,
+                                       items)
         kn0 = _NONE
         kn1 = _NONE
         for sd in range(2):
@@ -475,48 +493,17 @@ def _k_live_round(q, fam, sid, piece, tangent, val, end_pos, labelled, why, cr, 
             if labelled[p] or b - a + 1 < min_samples:
                 why[p] = 5
                 continue
-            mid = (a + b) // 2
-            sm = sid[mid]
-            qx, qy = q[sm, 0], q[sm, 1]
-            tx, ty = q[sid[b], 0] - q[sid[a], 0], q[sid[b], 1] - q[sid[a], 1]
-            half = 0.5 * math.hypot(tx, ty)
-            if half <= 0.0:
+            ok, qx, qy, tx, ty, reach_al = _axis(a, b, sid, q, across_r)
+            if not ok:
                 why[p] = 5
                 continue
-            tx /= 2.0 * half
-            ty /= 2.0 * half
-            reach_al = min(half, 0.5 * across_r)
             cx0, cx1, cy0, cy1 = _cells(qx, qy, math.hypot(across_r, reach_al), x0, y0, cell, gw, gh)
             rect[p, 0] = cx0
             rect[p, 1] = cx1
             rect[p, 2] = cy0
             rect[p, 3] = cy1
-            f = fam[sid[a]]
-            ncell = gw * gh
-            near0 = across_r + 1.0
-            near1 = across_r + 1.0
-            s0 = -1
-            s1 = -1
-            for cy in range(cy0, cy1 + 1):
-                for cx in range(cx0, cx1 + 1):
-                    i0, i1 = _fam_items(cy * gw + cx, f, start, ncell)
-                    for it in range(i0, i1):  # `_k_round`'s search, the trace tests after the geometric ones
-                        s = items[it]
-                        dx, dy = q[s, 0] - qx, q[s, 1] - qy
-                        if abs(dx * tx + dy * ty) > reach_al:
-                            continue
-                        ac = dx * ty - dy * tx
-                        if ac <= -1.0:
-                            if -ac < near0:
-                                k = pos_of[s]
-                                if k >= 0 and piece[k] != p:
-                                    near0 = -ac
-                                    s0 = s
-                        elif ac >= 1.0 and ac < near1:
-                            k = pos_of[s]
-                            if k >= 0 and piece[k] != p:
-                                near1 = ac
-                                s1 = s
+            s0, near0, s1, near1 = _beside(p, fam[sid[a]], qx, qy, tx, ty, reach_al, across_r, cx0, cx1, cy0, cy1, q, piece, pos_of, gw, gh,
+                                           start, items)
             if s0 < 0 and s1 < 0:  # no neighbour sample, now or later
                 why[p] = 3
                 continue
