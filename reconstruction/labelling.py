@@ -307,7 +307,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         adj: list = []
         pos = np.full(M, -1, np.intp)
 
-        def clusters(members, bad, n_bad):
+        def _clusters(members, bad, n_bad):
             if not adj:
                 adj.extend(kept_adjacency(int(M), e_arrays[0], e_arrays[1], keep))
             out, added = elevated_pieces(members, residual, bad, adj[0], adj[1], pos, float(options.cluster_factor),
@@ -319,6 +319,8 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             residual[newly] = np.nan
             stats["junctions_residual_clusters"] += int(added)
             return out, n_bad + int(added)
+
+        clusters = _clusters
 
     # Work list: (members, split round, first-round group or −1). Pieces split off are relabelled on their own.
     work = [(order[bounds[g] : bounds[g + 1]], 0, g) for g in range(len(bounds) - 1)]

@@ -251,8 +251,8 @@ def few_junctions_warning(n_samples: int, n_junctions: int, junction_step_px: fl
     """The frame's warning when extraction found many line samples but few junctions (None: no warning).
 
     A grid seen whole gives about 2·step/cell samples per junction (two families, one sample per sampling step
-    along each, step: the rig's junction spacing in the camera); the benchmark scenes give 1.6–2.6 times that,
-    shadows and silhouettes included. Ten times that, with at least 1 000 samples, means crossings were not
+    along each, step: the rig's junction spacing in the camera); the eight benchmark scenes give 1.6–2.6 times that
+    (a development script's count), shadows and silhouettes included. Ten times that, with at least 1 000 samples, means crossings were not
     found where lines were: one family's lines too close together in the image (a surface seen at a grazing angle,
     a pitch too fine for the camera). Seen on an unseen scene: 18 378 samples, 5 junctions, no points, no warning."""
     if n_samples < 1000 or n_junctions <= 0:
