@@ -70,7 +70,7 @@ class LabelOptions:
     depth_max_mm: float = 10000.0
     min_inside_fraction: float = 0.9
     residual_cap_px: float = 1.0
-    noise_floor_px: float = 0.15
+    noise_floor_px: float = 0.1
     ambiguity_chi2: float = 25.0
     min_rms_ratio: float = 1.5
     candidate_band_px: float = 4.0

@@ -320,14 +320,11 @@ class InlineStages:
 
 
 def _grid_stages(cfg: RigConfig, procam) -> tuple[Callable, Callable]:
-    from reconstruction.pipeline import ReconstructOptions, extract_frame, finish_frame
+    from reconstruction.pipeline import extract_frame, finish_frame
 
-    from rig.registry import working_volume
+    from rig.registry import reconstruct_options
 
-    depth_min_mm, depth_max_mm = working_volume(cfg)
-    options = ReconstructOptions(
-        labeller=cfg.reconstruction.labeller, depth_min_mm=depth_min_mm, depth_max_mm=depth_max_mm
-    )
+    options = reconstruct_options(cfg)
     return (lambda images: extract_frame(images[0], procam, cfg.pattern, options=options)), finish_frame
 
 

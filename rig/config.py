@@ -58,6 +58,12 @@ class ReconstructionConfig(BaseModel):
         None, gt=0, description="working volume (camera-frame z): nearest surface; None: the simulated scene's, else 100"
     )
     depth_max_mm: float | None = Field(None, gt=0, description="farthest surface; None: the simulated scene's, else 10000")
+    epipolar_floor_px: float | None = Field(
+        None,
+        gt=0,
+        description="smallest epipolar error (projector px RMS) the labeller's ambiguity test assumes; None: the "
+        "calibration file's stereo RMS where it is larger than 0.1, else 0.1 (decision 0110)",
+    )
 
     @model_validator(mode="after")
     def _range(self) -> "ReconstructionConfig":
@@ -206,4 +212,8 @@ labeller = "epipolar"   # "epipolar" (default: whole components) or "paper" (thr
 # makes labelling robust. Default: the simulated scene's depth range, or 100 to 10000 mm on a real rig.
 # depth_min_mm = 500.0
 # depth_max_mm = 1500.0
+# The smallest epipolar error (projector px RMS) the labeller trusts a win against: a component is labelled only if
+# the runner-up offset misses its epipolar lines clearly more than that. Default: the calibration's stereo RMS (from
+# `rig calibrate`) where it is larger than 0.1 px, else 0.1 px. Raise it if scans show whole surfaces shifted by a line.
+# epipolar_floor_px = 0.3
 '''

@@ -8,6 +8,7 @@ the devices.
 from __future__ import annotations
 
 import contextlib
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -74,6 +75,34 @@ def working_volume(cfg: RigConfig) -> tuple[float, float]:
     if hi <= lo:
         raise ConfigError(f"{cfg.source or 'configuration'}: [reconstruction] depth_max_mm ({hi}) must exceed depth_min_mm ({lo})")
     return lo, hi
+
+
+def epipolar_floor_px(cfg: RigConfig) -> float:
+    """The labeller's noise floor (`LabelOptions.noise_floor_px`, projector px): rig.toml's
+    `[reconstruction] epipolar_floor_px`; where absent, the calibration file's stereo RMS (`quality.stereo_rms_px`,
+    written by `rig calibrate`) if it is larger than the default, else the default (decision 0110). A calibration
+    that reprojects with 0.3 px RMS cannot tell two offsets apart that differ by less on the epipolar lines."""
+    from reconstruction.labelling import LabelOptions
+
+    if cfg.reconstruction.epipolar_floor_px is not None:
+        return float(cfg.reconstruction.epipolar_floor_px)
+    floor = LabelOptions().noise_floor_px
+    if cfg.calibration is not None:
+        rms = load_calibration(cfg.calibration).quality.get("stereo_rms_px")
+        if isinstance(rms, (int, float)) and math.isfinite(rms) and rms > floor:
+            floor = float(rms)
+    return floor
+
+
+def reconstruct_options(cfg: RigConfig, *, labeller: str | None = None):
+    """The ReconstructOptions rig.toml asks for: labeller (or the override), working volume, epipolar floor."""
+    import dataclasses
+
+    from reconstruction.pipeline import ReconstructOptions
+
+    depth_min_mm, depth_max_mm = working_volume(cfg)
+    options = ReconstructOptions(labeller=labeller or cfg.reconstruction.labeller, depth_min_mm=depth_min_mm, depth_max_mm=depth_max_mm)
+    return dataclasses.replace(options, label=dataclasses.replace(options.label, noise_floor_px=epipolar_floor_px(cfg)))
 
 
 def render_options(cfg: RigConfig):

@@ -29,10 +29,10 @@ def reconstruct_cmd(
     import cv2
 
     from calibration.errors import ConfigError, ReconstructionError
-    from reconstruction.pipeline import ReconstructOptions, reconstruct
+    from reconstruction.pipeline import reconstruct
     from rig.config import load_config
     from rig.acquire import save_products
-    from rig.registry import resolve_procam, working_volume
+    from rig.registry import reconstruct_options, resolve_procam
 
     cfg = load_config(config)
     if labeller is not None and labeller not in ("epipolar", "paper"):
@@ -45,10 +45,7 @@ def reconstruct_cmd(
     if img is None:
         raise ReconstructionError(f"{image}: OpenCV cannot read this file as an image (use PNG, TIFF, BMP or JPEG)")
     procam, source = resolve_procam(cfg)
-    depth_min_mm, depth_max_mm = working_volume(cfg)
-    options = ReconstructOptions(
-        labeller=labeller or cfg.reconstruction.labeller, depth_min_mm=depth_min_mm, depth_max_mm=depth_max_mm
-    )
+    options = reconstruct_options(cfg, labeller=labeller)
     times, stages = [], []
     result = None
     first_ms = None
