@@ -614,6 +614,17 @@ def fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, r
         if math.isfinite(index[sid[k]]):
             lab_pos[nlab] = k
             nlab += 1
+    return fill_gaps_at(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, reach_px, anchor, seed_lateral_px,
+                        lab_pos[:nlab])
+
+
+@njit
+def fill_gaps_at(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, reach_px, anchor, seed_lateral_px, lab_pos):
+    """`fill_gaps` given its labelled trace positions lab_pos (increasing; = np.flatnonzero(np.isfinite(index[sid])),
+    which the caller may know already: decision 0115)."""
+    if candidates.shape[0] == 0:
+        return 0
+    nlab = lab_pos.shape[0]
     if nlab == 0:
         return 0
     npl = 0

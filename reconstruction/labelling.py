@@ -859,7 +859,8 @@ def _sample_grid(q: np.ndarray, valid: np.ndarray, sid: np.ndarray, cell_px: flo
     return float(x0), float(y0), float(cell_px), int(gw), int(gh), start, items, pos_of
 
 
-def _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, reach_px: float, options: TraceOptions) -> int:
+def _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, reach_px: float, options: TraceOptions,
+               lab_pos: np.ndarray | None = None) -> int:
     """Fill the gaps at crossings between two labelled pieces of one line (TraceOptions.fill_gaps).
 
     The samples of a crossing's gap (mixing zone, or trimmed from a crossing-labelled piece's end) lie
@@ -870,7 +871,13 @@ def _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, 
     only, e.g. at an occluding edge where the background's lines run past, stays empty: checked against
     simulator truth.) The sample is moved onto the chord between the two anchors (the labelled samples
     `fill_anchor` samples inside each end) if it lies within seed_lateral_px of it. Writes index,
-    seed_jid and q_out in place; returns the number of samples filled. Compiled (`_label_kernels.fill_gaps`)."""
+    seed_jid and q_out in place; returns the number of samples filled. Compiled (`_label_kernels.fill_gaps`).
+    lab_pos: the trace positions whose sample carries an index (np.flatnonzero(np.isfinite(index[sid]))) when
+    the caller has them (decision 0115); None: found here."""
+    if lab_pos is not None:
+        return int(_k.fill_gaps_at(q, fam, sid, piece, tangent, index, seed_jid, q_out, np.ascontiguousarray(candidates, np.intp),
+                                   float(reach_px), int(options.fill_anchor), float(options.seed_lateral_px),
+                                   np.ascontiguousarray(lab_pos, np.intp)))
     return int(_k.fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, np.ascontiguousarray(candidates, np.intp),
                             float(reach_px), int(options.fill_anchor), float(options.seed_lateral_px)))
 
@@ -1157,8 +1164,10 @@ def label_samples(
                                                           reach_px=cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                                           min_angle_deg=options.continue_gap_deg or 45.0),
                                                           lateral_px=options.seed_lateral_px * cell, ridge=ridge)
+        lab_pos = None  # the labelled trace positions when known (decision 0115)
         if (options.cross_pieces or options.continue_lines) and model is not None:
             g, n_unseeded = _k.labelled_positions(index, sid)  # (decision 0087)
+            lab_pos = g
         else:
             g = np.flatnonzero(got)
             n_unseeded = len(got) - len(g)
@@ -1169,10 +1178,12 @@ def label_samples(
             cut_samples = sid[g[cut]]
             index[cut_samples] = np.nan
             stats["cut_profile"] = int(len(cut_samples))
+            if lab_pos is not None:
+                lab_pos = g[~cut]
         if options.fill_gaps:
             # gap samples: the mixing zone, and the unlabelled ends of labelled pieces
             cand = _k.gap_candidates(valid, index, sid, piece, cut_samples)
             reach = (options.mix_sigma + options.cross_trim_sigma) * sigma_px + 2.0
-            stats["samples_gap_filled"] = _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, cand, reach, options)
+            stats["samples_gap_filled"] = _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, cand, reach, options, lab_pos)
     stats["samples_labelled"] = int(_k.drop_unlabelled_junctions(index, seed_jid))
     return SampleLabels(index, q_out, seed_jid, stats)
