@@ -614,6 +614,17 @@ def fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, r
         if math.isfinite(index[sid[k]]):
             lab_pos[nlab] = k
             nlab += 1
+    return fill_gaps_at(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, reach_px, anchor, seed_lateral_px,
+                        lab_pos[:nlab])
+
+
+@njit
+def fill_gaps_at(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, reach_px, anchor, seed_lateral_px, lab_pos):
+    """`fill_gaps` given its labelled trace positions lab_pos (increasing; = np.flatnonzero(np.isfinite(index[sid])),
+    which the caller may know already: decision 0115)."""
+    if candidates.shape[0] == 0:
+        return 0
+    nlab = lab_pos.shape[0]
     if nlab == 0:
         return 0
     npl = 0
@@ -1226,11 +1237,28 @@ def sample_grid_split(q, valid, fam, sid, cell):
     as in `sample_grid`'s cell). Returns the same (x0, y0, gw, gh, start, items, pos_of) with start
     extended to (2·gw·gh + 1,): start[:gw·gh + 1] as in sample_grid, and start[gw·gh + 1 + c] the first
     item of cell c that is not of family 1. Kernels that know it (`crossing_nearest`, by the length of
-    start) read only the family they look for; the others read whole cells as before."""
-    P = q.shape[0]
+    start) read only the family they look for; the others read whole cells as before. The grid (no label in
+    it) is `sample_grid_cells`, pos_of `positions_of` (decision 0115)."""
+    pos_of = positions_of(q.shape[0], sid)
+    x0, y0, gw, gh, start, items = sample_grid_cells(q, valid, fam, cell)
+    return x0, y0, gw, gh, start, items, pos_of
+
+
+@njit
+def positions_of(P, sid):
+    """(P,) intp: each sample's trace position (sid[k] = s ⇒ pos_of[s] = k; −1 off the traces)."""
     pos_of = np.full(P, -1, np.intp)
     for k in range(sid.shape[0]):
         pos_of[sid[k]] = k
+    return pos_of
+
+
+@njit
+def sample_grid_cells(q, valid, fam, cell):
+    """`sample_grid_split` without pos_of: (x0, y0, gw, gh, start, items) of the valid samples, each cell's
+    items split by family. Needs no label: the extraction stage builds it (`labelling.prepare_samples`,
+    decision 0115)."""
+    P = q.shape[0]
     x0 = np.inf
     y0 = np.inf
     x1 = -np.inf
@@ -1280,7 +1308,7 @@ def sample_grid_split(q, valid, fam, sid, cell):
             else:
                 items[fill2[b]] = s
                 fill2[b] += 1
-    return x0, y0, gw, gh, start, items, pos_of
+    return x0, y0, gw, gh, start, items
 
 
 @njit

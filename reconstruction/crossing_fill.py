@@ -114,6 +114,22 @@ def grid_cell_px(gap_max: float, sigma_px: float, cell_px: float) -> float:
     return max(gap_max, 4.0 * sigma_px, 2.0 * cell_px)
 
 
+def fill_grid_cell_px(sigma_px: float, cell_px: float, options: CrossingFillOptions) -> float:
+    """`fill_crossings`' bucket-grid cell (camera px) for these options (`grid_cell_px` of the longest gap)."""
+    gap_max = cell_px + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.trim_sigma,
+                                        min_angle_deg=options.min_angle_deg)
+    return grid_cell_px(gap_max, sigma_px, cell_px)
+
+
+def family_grid(q_samples: np.ndarray, family_samples: np.ndarray, cell_px: float) -> tuple:
+    """Every extracted sample's bucket grid by family (`_family_grid`: x0, y0, gw, gh, start, mid, items) on
+    cells cell_px wide. Needs no label: the pipeline builds it in the extraction stage and hands it to
+    `fill_crossings` (`grids`; decision 0115)."""
+    qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
+    fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
+    return _family_grid(qs, fs, float(cell_px))
+
+
 def fill_crossings(
     q: np.ndarray,
     family: np.ndarray,
@@ -130,6 +146,7 @@ def fill_crossings(
     cell_px: float,
     depth_range_mm: tuple[float, float],
     options: CrossingFillOptions = CrossingFillOptions(),
+    grids: dict | None = None,
 ) -> CrossingPoints:
     """Points in the crossings' gaps of lines labelled with one index on both sides (module doc).
 
@@ -138,7 +155,10 @@ def fill_crossings(
     family_samples (S,): every extracted sample (the other family's run through a gap). q_junction (M, 2),
     junction_dir (M, 2, 2) (the fitted i- and j-line directions), junction_labels (M, 2) (UNLABELLED where
     none). sigma_px: the extraction's smoothing; cell_px: its
-    sampling step (1, or 2 on a half-resolution image). Camera px throughout. Compiled (`_k_gaps`)."""
+    sampling step (1, or 2 on a half-resolution image). Camera px throughout. Compiled (`_k_gaps`). grids:
+    bucket grids built before the labels (`labelling.SamplePrep.grids`): the one under ("family", cell), cell
+    `fill_grid_cell_px(sigma_px, cell_px, options)`, must be `family_grid(q_samples, family_samples, cell)`
+    and is used instead of building it again (decision 0115)."""
     stats = {"crossing_gaps": 0, "crossing_gaps_filled": 0, "samples_crossing_filled": 0, "crossing_gaps_rejected": {}}
     if not options.enabled:
         return _empty(stats)
@@ -160,7 +180,11 @@ def fill_crossings(
     jdir = np.ascontiguousarray(junction_dir, np.float64).reshape(-1, 2, 2)
     qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
     fs = fam if family_samples is family else np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
-    grids = _k_grids(qj, lab, qs, fs, float(gcell))
+    fgrid = None if grids is None else grids.get(("family", float(gcell)))
+    if fgrid is None:
+        grids = _k_grids(qj, lab, qs, fs, float(gcell))
+    else:
+        grids = _k_junction_grid(qj, lab, float(gcell)) + tuple(fgrid)
     shared = FillShared(inputs, len(q), order, key_sorted, key_range, gcell, grids)
     n_gaps, gaps, acc, c_q, why = _k_gaps(
         q, fam, idx, order, qj, jdir, lab, qs, *grids, float(gcell), float(cell_px), float(sigma_px),
@@ -203,6 +227,16 @@ def _k_grids(qj, lab, qs, fs, gcell):
     jx0, jy0, jgw, jgh, jstart, jitems, _ = sample_grid(qj, jkeep, _NO_TRACE, gcell)
     sx0, sy0, sgw, sgh, sstart, smid, sitems = _family_grid(qs, fs, gcell)
     return jx0, jy0, jgw, jgh, jstart, jitems, sx0, sy0, sgw, sgh, sstart, smid, sitems
+
+
+@njit
+def _k_junction_grid(qj, lab, gcell):
+    """`_k_grids`' first grid alone (the labelled junctions': x0, y0, gw, gh, start, items)."""
+    jkeep = np.empty(qj.shape[0], np.bool_)
+    for j in range(qj.shape[0]):
+        jkeep[j] = lab[j, 0] != UNLABELLED
+    jx0, jy0, jgw, jgh, jstart, jitems, _ = sample_grid(qj, jkeep, _NO_TRACE, gcell)
+    return jx0, jy0, jgw, jgh, jstart, jitems
 
 
 def _family_directions(model: RigModel) -> tuple[np.ndarray, np.ndarray]:

@@ -841,18 +841,26 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
     return total
 
 
-def _sample_grid(q: np.ndarray, valid: np.ndarray, sid: np.ndarray, cell_px: float, fam: np.ndarray | None = None) -> tuple:
+def _sample_grid(q: np.ndarray, valid: np.ndarray, sid: np.ndarray, cell_px: float, fam: np.ndarray | None = None,
+                 prep: SamplePrep | None = None) -> tuple:
     """The bucket grid of the valid samples in cells cell_px wide that the crossing searches share, with
     each sample's trace position (`_label_kernels.sample_grid`): (x0, y0, cell, gw, gh, start, items, pos_of).
-    With fam (P,): each cell's items split by family (`_label_kernels.sample_grid_split`, decision 0090)."""
+    With fam (P,): each cell's items split by family (`_label_kernels.sample_grid_split`, decision 0090),
+    taken from prep.grids when the extraction stage built it on this cell (decision 0115; prep must be
+    these samples' and valid prep.valid)."""
     if fam is None:
         x0, y0, gw, gh, start, items, pos_of = _k.sample_grid(q, valid, sid, float(cell_px))
     else:
-        x0, y0, gw, gh, start, items, pos_of = _k.sample_grid_split(q, valid, fam, sid, float(cell_px))
+        g = None if prep is None else prep.grids.get(("valid", float(cell_px)))
+        if g is None:
+            g = _k.sample_grid_cells(q, valid, fam, float(cell_px))
+        x0, y0, gw, gh, start, items = g
+        pos_of = _k.positions_of(len(q), sid)
     return float(x0), float(y0), float(cell_px), int(gw), int(gh), start, items, pos_of
 
 
-def _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, reach_px: float, options: TraceOptions) -> int:
+def _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, reach_px: float, options: TraceOptions,
+               lab_pos: np.ndarray | None = None) -> int:
     """Fill the gaps at crossings between two labelled pieces of one line (TraceOptions.fill_gaps).
 
     The samples of a crossing's gap (mixing zone, or trimmed from a crossing-labelled piece's end) lie
@@ -863,7 +871,13 @@ def _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates, 
     only, e.g. at an occluding edge where the background's lines run past, stays empty: checked against
     simulator truth.) The sample is moved onto the chord between the two anchors (the labelled samples
     `fill_anchor` samples inside each end) if it lies within seed_lateral_px of it. Writes index,
-    seed_jid and q_out in place; returns the number of samples filled. Compiled (`_label_kernels.fill_gaps`)."""
+    seed_jid and q_out in place; returns the number of samples filled. Compiled (`_label_kernels.fill_gaps`).
+    lab_pos: the trace positions whose sample carries an index (np.flatnonzero(np.isfinite(index[sid]))) when
+    the caller has them (decision 0115); None: found here."""
+    if lab_pos is not None:
+        return int(_k.fill_gaps_at(q, fam, sid, piece, tangent, index, seed_jid, q_out, np.ascontiguousarray(candidates, np.intp),
+                                   float(reach_px), int(options.fill_anchor), float(options.seed_lateral_px),
+                                   np.ascontiguousarray(lab_pos, np.intp)))
     return int(_k.fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, np.ascontiguousarray(candidates, np.intp),
                             float(reach_px), int(options.fill_anchor), float(options.seed_lateral_px)))
 
@@ -912,7 +926,11 @@ class SamplePrep:
     the mixing zone, within mix_sigma·σ of a sample of the other family (a disk on that grid); blurred: the
     image 3×3 box-filtered (`_box3`, None without an image); ridge (P,) float32: blurred at the samples
     (`_ridge_brightness`, None without an image or with max_ridge_step 0). key: what it was computed for
-    (P, σ, mix_sigma, whether the ridge was read, the image's id)."""
+    (P, σ, mix_sigma, whether the ridge was read, the image's id). grids: bucket grids of the samples that need
+    no label either, built in the same stage (decision 0115): ("valid", cell) the valid samples' grid split by
+    family (`_label_kernels.sample_grid_cells`, `trace_grid_cell_px`), ("family", cell) every sample's
+    (`crossing_fill.family_grid`); read-only, looked up by the stage that needs them and built there when
+    absent."""
 
     cell: int
     valid: np.ndarray
@@ -925,6 +943,7 @@ class SamplePrep:
     blurred: np.ndarray | None
     ridge: np.ndarray | None
     key: tuple
+    grids: dict = field(default_factory=dict)
 
     def check(self, n_samples: int, sigma_px: float, options: TraceOptions, image: np.ndarray | None) -> None:
         """ValueError unless this was prepared for these samples, σ, options and image."""
@@ -940,9 +959,11 @@ def _prep_key(n_samples: int, sigma_px: float, options: TraceOptions, image: np.
 
 
 def prepare_samples(obs: GridObservation, *, sigma_px: float, options: TraceOptions = TraceOptions(),
-                    image: np.ndarray | None = None) -> SamplePrep:
+                    image: np.ndarray | None = None, grid_cell_px: float | None = None) -> SamplePrep:
     """`label_samples`' measurements that need no label (SamplePrep): the samples' cells, the mixing zone, the
-    box-filtered image and the ridge brightness at the samples. Same arguments as label_samples."""
+    box-filtered image and the ridge brightness at the samples. Same arguments as label_samples; grid_cell_px
+    (`trace_grid_cell_px(model, options)`): the valid samples' bucket grid on that cell too (SamplePrep.grids,
+    decision 0115; None: built by label_samples)."""
     q = np.ascontiguousarray(np.asarray(obs.q, np.float64).reshape(-1, 2))
     fam = np.ascontiguousarray(np.asarray(obs.family).reshape(-1), np.intp)
     key = _prep_key(len(q), sigma_px, options, image)
@@ -957,7 +978,18 @@ def prepare_samples(obs: GridObservation, *, sigma_px: float, options: TraceOpti
     near_other = _k.mixing_zone(r, c, fam, valid, int(H), int(W), *_disk_offsets(rad))
     blurred = _box3(image) if image is not None else None
     ridge = _ridge_brightness(blurred, q) if image is not None and options.max_ridge_step > 0 else None
-    return SamplePrep(cell, valid, r, c, int(H), int(W), int(n_valid), near_other, blurred, ridge, key)
+    prep = SamplePrep(cell, valid, r, c, int(H), int(W), int(n_valid), near_other, blurred, ridge, key)
+    if grid_cell_px is not None:
+        prep.grids[("valid", float(grid_cell_px))] = _k.sample_grid_cells(q, valid, fam, float(grid_cell_px))
+    return prep
+
+
+def trace_grid_cell_px(model: RigModel, options: TraceOptions) -> float | None:
+    """The cell of the bucket grid the label stage's crossing searches share (camera px), None when
+    `label_samples` builds none (no crossing pieces and no continuation)."""
+    if not (options.cross_pieces or options.continue_lines):
+        return None
+    return float(model.junction_step_cam_px * max(options.cross_radius, options.continue_reach))
 
 
 def label_samples(
@@ -1065,7 +1097,7 @@ def label_samples(
             if options.continue_gap_deg > 0:
                 reach_cont = max(reach_cont, cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                      min_angle_deg=options.continue_gap_deg))
-            grid = _sample_grid(q, valid, sid, model.junction_step_cam_px * max(options.cross_radius, options.continue_reach), fam)
+            grid = _sample_grid(q, valid, sid, trace_grid_cell_px(model, options), fam, prep)
         cross_state: dict = {}  # the crossing searches' results, carried to the round after the continuation
         if options.cross_pieces and model is not None:
             stats["samples_from_crossings"] = _crossing_seeds(
@@ -1132,8 +1164,10 @@ def label_samples(
                                                           reach_px=cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                                           min_angle_deg=options.continue_gap_deg or 45.0),
                                                           lateral_px=options.seed_lateral_px * cell, ridge=ridge)
+        lab_pos = None  # the labelled trace positions when known (decision 0115)
         if (options.cross_pieces or options.continue_lines) and model is not None:
             g, n_unseeded = _k.labelled_positions(index, sid)  # (decision 0087)
+            lab_pos = g
         else:
             g = np.flatnonzero(got)
             n_unseeded = len(got) - len(g)
@@ -1144,10 +1178,12 @@ def label_samples(
             cut_samples = sid[g[cut]]
             index[cut_samples] = np.nan
             stats["cut_profile"] = int(len(cut_samples))
+            if lab_pos is not None:
+                lab_pos = g[~cut]
         if options.fill_gaps:
             # gap samples: the mixing zone, and the unlabelled ends of labelled pieces
             cand = _k.gap_candidates(valid, index, sid, piece, cut_samples)
             reach = (options.mix_sigma + options.cross_trim_sigma) * sigma_px + 2.0
-            stats["samples_gap_filled"] = _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, cand, reach, options)
+            stats["samples_gap_filled"] = _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, cand, reach, options, lab_pos)
     stats["samples_labelled"] = int(_k.drop_unlabelled_junctions(index, seed_jid))
     return SampleLabels(index, q_out, seed_jid, stats)

@@ -27,12 +27,12 @@ import numpy as np
 from calibration.errors import ReconstructionError
 from calibration.models import ProCam
 from reconstruction.border_fill import BorderFillOptions, with_border
-from reconstruction.crossing_fill import CrossingFillOptions, CrossingPoints, fill_crossings
+from reconstruction.crossing_fill import CrossingFillOptions, CrossingPoints, family_grid, fill_crossings, fill_grid_cell_px
 from reconstruction.crossing_fill_one_sided import OneSidedFillOptions, with_one_sided
 from reconstruction.extraction import ExtractOptions, GridObservation, extract_grid, sigma_for
 from reconstruction.geometry import triangulate_rays
 from reconstruction.labelling import (LabelOptions, Labels, SampleLabels, SamplePrep, TraceOptions, label_epipolar, label_paper,
-                                      label_samples, prepare_samples)
+                                      label_samples, prepare_samples, trace_grid_cell_px)
 from reconstruction.patterns import GridPattern
 from reconstruction._jit import njit
 from reconstruction.rigmodel import UNLABELLED, RigModel, rig_model
@@ -167,8 +167,13 @@ def extract_frame(
     prep = None
     if options.dense and len(obs.q):
         # the samples' measurements that need no label (cells, mixing zone, ridge brightness): extraction's
-        # work, so that the two threads of a stream carry similar loads (decision 0107)
-        prep = prepare_samples(obs, sigma_px=_sigma(obs, model, options), options=options.trace, image=image)
+        # work, so that the two threads of a stream carry similar loads (decision 0107); the samples' bucket grid
+        # too (decision 0115)
+        prep = prepare_samples(obs, sigma_px=_sigma(obs, model, options), options=options.trace, image=image,
+                               grid_cell_px=trace_grid_cell_px(model, options.trace))
+        if options.labeller == "epipolar" and options.crossing.enabled:
+            gcell = fill_grid_cell_px(_sigma(obs, model, options), float(max(1, int(obs.stats.get("scale", 1)))), options.crossing)
+            prep.grids[("family", float(gcell))] = family_grid(obs.q, obs.family, gcell)
     xy_cam_j = model.cam_normalised(obs.q_junction)
     t_extract = time.perf_counter()
     return ExtractedFrame(image, obs, model, options, {"model": 1e3 * (t_model - t0), "extract": 1e3 * (t_extract - t_model)}, prep,
@@ -212,7 +217,8 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
         cp = fill_crossings(sl.q, obs.family, sl.index, sl.junction, q_samples=obs.q, family_samples=obs.family,
                             q_junction=obs.q_junction, junction_dir=obs.junction_dir, junction_labels=lab.labels, model=model, sigma_px=sigma,
                             cell_px=float(max(1, int(obs.stats.get("scale", 1)))),
-                            depth_range_mm=(options.depth_min_mm, options.depth_max_mm), options=options.crossing)
+                            depth_range_mm=(options.depth_min_mm, options.depth_max_mm), options=options.crossing,
+                            grids=None if frame.prep is None else frame.prep.grids)
     if cp is not None and options.one_sided.enabled:
         # points from a labelled line's end up to the crossing that ends it (decision 0099; with 0086's fill only:
         # without it every gap's sides would be ends)
