@@ -17,7 +17,7 @@ def check(config: Path = typer.Option(None, "--config", "-c", help="rig.toml (de
     from rig.acquire import grab_verified
     from rig.config import load_config
     from reconstruction.placement import labelling_margin
-    from rig.registry import open_rig, working_volume
+    from rig.registry import epipolar_floor_px, open_rig, working_volume
 
     cfg = load_config(config)
     with open_rig(cfg) as rig:
@@ -44,6 +44,11 @@ def check(config: Path = typer.Option(None, "--config", "-c", help="rig.toml (de
     volume = working_volume(cfg)
     margin = labelling_margin(procam, cfg.pattern, depth_range_mm=volume)
     typer.echo(f"placement: working volume {volume[0]:.0f}–{volume[1]:.0f} mm; {margin.advice()}")
+    floor = epipolar_floor_px(cfg)
+    typer.echo(
+        f"labelling: a label offset wins only where the runner-up misses its epipolar lines by more than "
+        f"{1.5 * floor:.2f} projector px RMS (epipolar floor {floor:.2f} px, decision 0110)"
+    )
     if margin.verdict == "ill-posed":
         typer.echo("rig check: devices OK, but this camera placement cannot label the grid reliably", err=True)
         raise typer.Exit(1)

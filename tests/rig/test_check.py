@@ -14,6 +14,15 @@ def test_default_rig_checks_ok(capsys):
     assert main(["check"]) == 0
     out = capsys.readouterr().out
     assert "trigger:   pattern 0 shown" in out and "labelling is well posed" in out and out.rstrip().endswith("rig check: OK")
+    assert "more than 0.15 projector px RMS (epipolar floor 0.10 px" in out  # the simulator's exact calibration: the default
+
+
+def test_check_reports_the_floor_of_a_rough_calibration(tmp_path, capsys):
+    truth = preset("tabletop").procam
+    save_calibration(CalibrationFile.from_procam(truth, quality={"stereo_rms_px": 0.31}), tmp_path / "cal.json")
+    (tmp_path / "rig.toml").write_text('calibration = "cal.json"\n')
+    assert main(["check", "--config", str(tmp_path / "rig.toml")]) == 0
+    assert "epipolar floor 0.31 px" in capsys.readouterr().out
 
 
 def test_degenerate_placement_is_reported(tmp_path, capsys):
