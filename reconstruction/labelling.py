@@ -19,7 +19,7 @@ Derivations and the ambiguity test: docs/reconstruction.md.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
 import cv2
@@ -1004,6 +1004,7 @@ def label_samples(
     image: np.ndarray | None = None,
     line_width_px: float | None = None,
     prep: SamplePrep | None = None,
+    label_options: LabelOptions | None = None,
 ) -> SampleLabels:
     """Give every line sample the index of its line, following the visible trace of the line from the
     labelled junctions on it.
@@ -1024,7 +1025,9 @@ def label_samples(
     the crossing pieces (`cross_pieces`, skipped without a model). image, line_width_px: for the cut-profile test
     (`max_profile_drop`, skipped without them). prep: `prepare_samples(obs, sigma_px=sigma_px, options=options,
     image=image)` when the caller computed it already (the pipeline does, in the extraction stage; decision
-    0107); None: computed here. Order: seeds and traces, crossing pieces, continuation, one more crossing
+    0107); None: computed here. label_options: the frame's `LabelOptions` (the pipeline passes its own), used with
+    min_component 3 to label decision 0092's piece junctions (None: LabelOptions(min_component=3)), so that
+    settings such as the epipolar floor (decision 0110) reach them too. Order: seeds and traces, crossing pieces, continuation, one more crossing
     round (`cross_rounds_after`), cut profiles, gap filling.
 
     Speed: the per-sample steps (valid samples and their cells, mixing zone, seeds, trace linking and
@@ -1133,7 +1136,8 @@ def label_samples(
                                        anchor=options.fill_anchor,
                                        reach_px=0.5 * (cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                               min_angle_deg=options.continue_gap_deg or 45.0)),
-                                       lateral_px=options.seed_lateral_px * cell, q_out=q_out, t_nodes=options.t_nodes)
+                                       lateral_px=options.seed_lateral_px * cell, q_out=q_out, t_nodes=options.t_nodes,
+                                       label_options=None if label_options is None else replace(label_options, min_component=3))
             stats["samples_piece_junctions"] = pj["samples"]
         if options.surface_labels and options.cross_pieces and model is not None and grid is not None:
             # pieces inside a labelled surface that predicts their index (decision 0093)

@@ -191,6 +191,7 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
     image, obs, model, options = frame.image, frame.obs, frame.model, frame.options
     t_extract = time.perf_counter()
     xy_cam_j = model.cam_normalised(obs.q_junction) if frame.xy_cam_j is None else frame.xy_cam_j
+    lo = None  # the default labeller's options, also for decision 0092's piece junctions
     if options.labeller == "paper":
         lab = label_paper(obs, model, xy_cam_j)
     else:
@@ -209,7 +210,7 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
             trace = replace(trace, piece_junctions=False)
         sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=trace, model=model,
                            depth_range_mm=(options.depth_min_mm, options.depth_max_mm), image=image,
-                           line_width_px=model.line_width_cam_px, prep=frame.prep)
+                           line_width_px=model.line_width_cam_px, prep=frame.prep, label_options=lo)
     cp = None
     if sl is not None and options.labeller == "epipolar" and options.crossing.enabled:
         # points through crossings whose line is labelled on both sides (decision 0086); the paper labeller's

@@ -268,3 +268,13 @@ def test_paper_labeller_runs_without_piece_junctions(monkeypatch):
         reconstruct(image, rig.procam, pattern, options=ReconstructOptions(labeller=labeller, depth_min_mm=rig.depth_range_mm[0],
                                                                            depth_max_mm=rig.depth_range_mm[1]))
     assert seen == [False, True]
+
+
+def test_the_frames_label_options_reach_the_piece_junctions(hole):
+    # decision 0110: rig.toml's epipolar floor must reach every offset choice, the piece junctions' too. A floor of
+    # 50 px makes every offset a tie, so the step labels nothing; the default floor labels the hole (test above).
+    s, model, obs, labels, inside, _, _ = hole
+    kw = dict(sigma_px=float(obs.stats.get("sigma_px", sigma_for(model, ExtractOptions()))), seed_radius_px=float(obs.stats["junction_radius_px"]),
+              options=TraceOptions(**_ALONE), model=model, depth_range_mm=s.depth_range_mm, image=s.image, line_width_px=model.line_width_cam_px)
+    assert label_samples(obs, labels, label_options=LabelOptions(), **kw).stats["samples_piece_junctions"] > 100
+    assert label_samples(obs, labels, label_options=LabelOptions(noise_floor_px=50.0), **kw).stats["samples_piece_junctions"] == 0
