@@ -47,7 +47,8 @@ class LabelOptions:
     min_inside_fraction: share of a component's junctions that must triangulate inside it for an offset to
         be admissible; afterwards every labelled junction must be inside it on its own.
     residual_cap_px: residuals are capped here in the offset score (robust to a few bad junctions).
-    noise_floor_px: smallest junction noise (projector px RMS) the ambiguity test assumes.
+    noise_floor_px: smallest junction noise (projector px RMS) the ambiguity test assumes: the epipolar error the
+        calibration may leave (decision 0110; `rig` sets it from rig.toml or the calibration's stereo RMS).
     ambiguity_chi2: the best offset must beat the runner-up by M·(s2 − s1)/σ² ≥ this (log-likelihood ratio × 2).
     min_rms_ratio: and its RMS residual must be this many times smaller than the runner-up's (σ floored):
         systematic calibration error shifts every junction alike and is not noise.
