@@ -114,11 +114,15 @@ def grid_cell_px(gap_max: float, sigma_px: float, cell_px: float) -> float:
     return max(gap_max, 4.0 * sigma_px, 2.0 * cell_px)
 
 
+def _gap_max_px(sigma_px: float, cell_px: float, options: CrossingFillOptions) -> float:
+    """The longest crossing gap `fill_crossings` bridges (camera px)."""
+    return cell_px + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.trim_sigma,
+                                     min_angle_deg=options.min_angle_deg)
+
+
 def fill_grid_cell_px(sigma_px: float, cell_px: float, options: CrossingFillOptions) -> float:
     """`fill_crossings`' bucket-grid cell (camera px) for these options (`grid_cell_px` of the longest gap)."""
-    gap_max = cell_px + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.trim_sigma,
-                                        min_angle_deg=options.min_angle_deg)
-    return grid_cell_px(gap_max, sigma_px, cell_px)
+    return grid_cell_px(_gap_max_px(sigma_px, cell_px, options), sigma_px, cell_px)
 
 
 def family_grid(q_samples: np.ndarray, family_samples: np.ndarray, cell_px: float) -> tuple:
@@ -170,8 +174,7 @@ def fill_crossings(
     d1, d2 = _family_directions(model)
     sel, key, key_range = _k_order_range(q, fam, idx, d1, d2)
     order, key_sorted = _sorted_with_keys(sel, key)
-    gap_max = cell_px + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.trim_sigma,
-                                        min_angle_deg=options.min_angle_deg)
+    gap_max = _gap_max_px(sigma_px, cell_px, options)
     gcell = grid_cell_px(gap_max, sigma_px, cell_px)
     if len(order) < 2 * options.anchor + 2:
         return _empty(stats, FillShared(inputs, len(q), order, key_sorted, key_range, gcell, None))

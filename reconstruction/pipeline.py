@@ -169,10 +169,11 @@ def extract_frame(
         # the samples' measurements that need no label (cells, mixing zone, ridge brightness): extraction's
         # work, so that the two threads of a stream carry similar loads (decision 0107); the samples' bucket grid
         # too (decision 0115)
-        prep = prepare_samples(obs, sigma_px=_sigma(obs, model, options), options=options.trace, image=image,
+        sigma = _sigma(obs, model, options)
+        prep = prepare_samples(obs, sigma_px=sigma, options=options.trace, image=image,
                                grid_cell_px=trace_grid_cell_px(model, options.trace))
         if options.labeller == "epipolar" and options.crossing.enabled:
-            gcell = fill_grid_cell_px(_sigma(obs, model, options), float(max(1, int(obs.stats.get("scale", 1)))), options.crossing)
+            gcell = fill_grid_cell_px(sigma, float(_step_px(obs)), options.crossing)
             prep.grids[("family", float(gcell))] = family_grid(obs.q, obs.family, gcell)
     xy_cam_j = model.cam_normalised(obs.q_junction)
     t_extract = time.perf_counter()
@@ -183,6 +184,11 @@ def extract_frame(
 def _sigma(obs: GridObservation, model: RigModel, options: ReconstructOptions) -> float:
     """The extraction's smoothing scale σ (camera px) of this frame."""
     return float(obs.stats.get("sigma_px", sigma_for(model, options.extract)))
+
+
+def _step_px(obs: GridObservation) -> int:
+    """The extraction's sampling step (camera px): 1, or 2 on a half-resolution image."""
+    return max(1, int(obs.stats.get("scale", 1)))
 
 
 def finish_frame(frame: ExtractedFrame) -> Reconstruction:
@@ -217,7 +223,7 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
         # output stays the paper's method
         cp = fill_crossings(sl.q, obs.family, sl.index, sl.junction, q_samples=obs.q, family_samples=obs.family,
                             q_junction=obs.q_junction, junction_dir=obs.junction_dir, junction_labels=lab.labels, model=model, sigma_px=sigma,
-                            cell_px=float(max(1, int(obs.stats.get("scale", 1)))),
+                            cell_px=float(_step_px(obs)),
                             depth_range_mm=(options.depth_min_mm, options.depth_max_mm), options=options.crossing,
                             grids=None if frame.prep is None else frame.prep.grids)
     if cp is not None and options.one_sided.enabled:
@@ -225,13 +231,13 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
         # without it every gap's sides would be ends)
         cp = with_one_sided(cp, sl.q, obs.family, sl.index, sl.junction, q_samples=obs.q, family_samples=obs.family,
                             q_junction=obs.q_junction, junction_labels=lab.labels, model=model, sigma_px=sigma,
-                            cell_px=float(max(1, int(obs.stats.get("scale", 1)))),
+                            cell_px=float(_step_px(obs)),
                             depth_range_mm=(options.depth_min_mm, options.depth_max_mm), options=options.one_sided)
     if cp is not None and options.border.enabled:
         # points from a labelled line's end up to the image border (decision 0104)
         cp = with_border(cp, sl.q, obs.family, sl.index, sl.junction, image=image, q_samples=obs.q, family_samples=obs.family,
                          model=model, sigma_px=sigma,
-                         cell_px=float(max(1, int(obs.stats.get("scale", 1)))),
+                         cell_px=float(_step_px(obs)),
                          depth_range_mm=(options.depth_min_mm, options.depth_max_mm), options=options.border)
     t_label = time.perf_counter()
     result = _triangulate(image, obs, lab, sl, model, xy_cam_j, options, cp)
@@ -388,7 +394,7 @@ def _triangulate(
     if M == 0:
         warnings.append("no usable grid in this frame (no line crossings found): check exposure, focus and that the pattern is shown")
     else:
-        w = few_junctions_warning(len(obs.q), M, model.junction_step_cam_px, max(1, int(obs.stats.get("scale", 1))))
+        w = few_junctions_warning(len(obs.q), M, model.junction_step_cam_px, _step_px(obs))
         if w:
             warnings.append(w)
         w = left_out_warning(M, n_j, lab.stats.get("junctions_left_out", {}), model.margin)
