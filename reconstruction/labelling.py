@@ -57,6 +57,10 @@ class LabelOptions:
         noise (half the mean squared difference of graph neighbours' signed residuals) taken out of both scores:
         noise that neighbours do not share averages away and is not the shared error the ratio guards against
         (decision 0122).
+    frame_retry_limit: an ambiguous component is judged again on its best offset's inliers; their limit is at most
+        max(outlier_sigma·σ̂_frame, max_residual_px), σ̂_frame the robust residual scale of the junctions the first
+        round accepted: a component whose own scale is inflated by wrong relative labels (half its junctions a
+        line off) would otherwise count every junction an inlier (decision 0123).
     candidate_band_px: offsets are proposed by pattern junctions this close to a reference junction's
         epipolar line. candidate_refs: how many reference junctions per component.
     outlier_sigma, max_residual_px: after the offset is chosen, a junction farther from its epipolar line
@@ -80,6 +84,7 @@ class LabelOptions:
     ambiguity_chi2: float = 25.0
     min_rms_ratio: float = 1.5
     neighbour_noise: bool = True
+    frame_retry_limit: bool = True
     candidate_band_px: float = 4.0
     candidate_refs: int = 5
     outlier_sigma: float = 6.0
@@ -202,16 +207,17 @@ class _Choice:
     residual: np.ndarray | None = None  # (m,) projector px
     inside: np.ndarray | None = None  # (m,) bool, inside the depth range
     rms: tuple[float, float] = (float("nan"), float("nan"))  # best, runner-up
+    limit: float | None = None  # the outlier limit, when the inlier retry decided (decision 0123)
 
 
 def _choose_offset(
     model: RigModel, rel: np.ndarray, ln: np.ndarray, xy_cam: np.ndarray, options: LabelOptions, stats: dict, *, _inlier_retry: bool = True,
-    members: np.ndarray | None = None, graph: tuple | None = None,
+    members: np.ndarray | None = None, graph: tuple | None = None, retry_limit_px: float = math.inf,
 ) -> _Choice:
     """Score every admissible integer offset of one component (relative labels rel (m, 2), epipolar lines
     ln (m, 3), normalised camera points xy_cam (m, 2)) and apply the range and ambiguity tests. members (m,) the
     component's junction ids and graph `_Graph` (the kept edges), both or neither: for the noise split of
-    decision 0122 (`_choice_of`)."""
+    decision 0122 (`_choice_of`); retry_limit_px: the inlier retry's limit at most this (decision 0123)."""
     rel = np.ascontiguousarray(rel, np.int64)
     ln = np.ascontiguousarray(ln, np.float64)
     xy_cam = np.ascontiguousarray(xy_cam, np.float64)
@@ -227,7 +233,7 @@ def _choose_offset(
         int(options.candidate_refs), float(options.candidate_band_px), float(options.min_inside_fraction), float(cap2),
         model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm))
     return _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside,
-                      members=members, graph=graph)
+                      members=members, graph=graph, retry_limit_px=retry_limit_px)
 
 
 class _Graph:
@@ -265,9 +271,9 @@ def _shared_error_test(model, rel, ln, off_best, s1, s2, n_eff, options, members
 
 
 def _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside,
-               limit=None, members=None, graph=None) -> _Choice:
+               limit=None, members=None, graph=None, retry_limit_px=math.inf) -> _Choice:
     """`_choose_offset`'s tests on `offset_choice`'s results (limit: `_outlier_limit(r_full)` when known; members,
-    graph: see `_choose_offset`)."""
+    graph, retry_limit_px: see `_choose_offset`)."""
     if status != 0:
         if status >= 2:
             stats["out_of_pattern"] += 1
@@ -286,14 +292,25 @@ def _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_
     elif n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2 or s2 < options.min_rms_ratio**2 * sigma2:
         # A component that mixes two surfaces (a bad edge) looks ambiguous as a whole: each offset fits one
         # part. Judge the best offset on its own inliers; if it wins there, the rest is split off later.
-        inl = np.isfinite(r_full) & (r_full <= (_outlier_limit(r_full, options) if limit is None else limit))
+        lim = min(_outlier_limit(r_full, options) if limit is None else limit, retry_limit_px)
+        inl = np.isfinite(r_full) & (r_full <= lim)
         if not _inlier_retry or inl.all() or inl.sum() < options.min_split_component:
             return _Choice("ambiguous", rms=rms)
         sub = _choose_offset(model, rel[inl], ln[inl], xy_cam[inl], options, stats, _inlier_retry=False,
                              members=None if members is None else members[inl], graph=graph)
         if sub.reason is not None or not np.array_equal(sub.labels[0] - rel[inl][0], lab[0] - rel[0]):
             return _Choice("ambiguous", rms=rms)
+        return _Choice(None, lab, r_full, inside, rms, limit=lim)  # the inliers' limit: the same unless tightened
     return _Choice(None, lab, r_full, inside, rms)
+
+
+def _frame_retry_limit(residual: np.ndarray, options: LabelOptions, *, min_junctions: int = 20) -> float:
+    """Decision 0123: `_outlier_limit` of the residuals (M,) (projector px, NaN where none) of the junctions the first
+    round accepted: the frame's own junction noise, which a component with many wrong relative labels cannot
+    inflate. inf when switched off or with fewer than min_junctions accepted junctions."""
+    if not options.frame_retry_limit or int(np.isfinite(residual).sum()) < min_junctions:
+        return math.inf
+    return _outlier_limit(residual, options)
 
 
 def _outlier_limit(r: np.ndarray, options: LabelOptions) -> float:
@@ -351,6 +368,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         float(options.outlier_sigma), float(options.max_residual_px), float(options.noise_floor_px**2),
         float(options.ambiguity_chi2), float(options.min_rms_ratio**2), labels, residual)
     graph = _Graph(int(M), e_arrays[0], e_arrays[1], keep)  # the kept edges, for decision 0122's noise split
+    retry_limit = _frame_retry_limit(residual, options)  # decision 0123
     # Groups of junctions off their epipolar lines together (decision 0108): taken out like outliers.
     clusters = None
     stats["junctions_residual_clusters"] = 0
@@ -402,10 +420,12 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             ok_g = bool(g_ok[g])
             ch = _choice_of(model, rel[members] if ok_g else None, lines[members] if ok_g else None, xy_cam[members] if ok_g else None,
                             options, stats, True, int(g_status[g]), g_fail[g], ok_g, g_s1[g], g_s2[g], int(g_neff[g]),
-                            g_off[g], g_r[b0:b1] if ok_g else None, g_in[b0:b1] if ok_g else None, g_limit[g], members=members, graph=graph)
+                            g_off[g], g_r[b0:b1] if ok_g else None, g_in[b0:b1] if ok_g else None, g_limit[g], members=members, graph=graph,
+                            retry_limit_px=retry_limit)
             limit = float(g_limit[g])
         else:
-            ch = _choose_offset(model, rel[members], lines[members], xy_cam[members], options, stats, members=members, graph=graph)
+            ch = _choose_offset(model, rel[members], lines[members], xy_cam[members], options, stats, members=members, graph=graph,
+                                retry_limit_px=retry_limit)
         if not (g >= 0 and g_written[g]):
             if ch.reason is not None:
                 left[ch.reason] += m
@@ -415,6 +435,8 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             r = ch.residual
             # the inliers (finite residual within the outlier limit, inside the depth range) take their labels:
             # one compiled pass (decision 0087)
+            if ch.limit is not None:
+                limit = ch.limit if limit is None else min(limit, ch.limit)
             bad, n_bad = _k.write_component(members, ch.labels, r, ch.inside, float(_outlier_limit(r, options)) if limit is None else limit,
                                             labels, residual)
             inside_m = ch.inside
