@@ -212,7 +212,7 @@ class _Choice:
 
 def _choose_offset(
     model: RigModel, rel: np.ndarray, ln: np.ndarray, xy_cam: np.ndarray, options: LabelOptions, stats: dict, *, _inlier_retry: bool = True,
-    members: np.ndarray | None = None, graph: tuple | None = None, retry_limit_px: float = math.inf,
+    members: np.ndarray | None = None, graph: _Graph | None = None, retry_limit_px: float = math.inf,
 ) -> _Choice:
     """Score every admissible integer offset of one component (relative labels rel (m, 2), epipolar lines
     ln (m, 3), normalised camera points xy_cam (m, 2)) and apply the range and ambiguity tests. members (m,) the
@@ -325,7 +325,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
 
     xy_cam: (M, 2) normalised camera coordinates of obs.q_junction. stats["junctions_left_out"] counts the
     junctions left out by reason (LEFT_OUT_REASONS); stats["components_split"] the components cut at
-    outlier junctions.
+    outlier junctions; stats["ambiguity_noise_split"] (when any) the components accepted by decision 0122's test.
 
     Speed (decisions 0067, 0078, 0087): the graph walk (`clean_edges`, `_propagate`), the components' groups,
     each component's candidate offsets, scores, depth walk and residuals (`offset_choice`: one call) and the
