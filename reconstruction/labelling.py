@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from reconstruction import _ambiguity_kernels as _ak
 from reconstruction import _label_kernels as _k
 from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.extraction import GridObservation
@@ -52,6 +53,14 @@ class LabelOptions:
     ambiguity_chi2: the best offset must beat the runner-up by M·(s2 − s1)/σ² ≥ this (log-likelihood ratio × 2).
     min_rms_ratio: and its RMS residual must be this many times smaller than the runner-up's (σ floored):
         systematic calibration error shifts every junction alike and is not noise.
+    neighbour_noise: a component that fails that ratio is judged again with the independent part of its junctions'
+        noise (half the mean squared difference of graph neighbours' signed residuals) taken out of both scores:
+        noise that neighbours do not share averages away and is not the shared error the ratio guards against
+        (decision 0122).
+    frame_retry_limit: an ambiguous component is judged again on its best offset's inliers; their limit is at most
+        max(outlier_sigma·σ̂_frame, max_residual_px), σ̂_frame the robust residual scale of the junctions the first
+        round accepted: a component whose own scale is inflated by wrong relative labels (half its junctions a
+        line off) would otherwise count every junction an inlier (decision 0123).
     candidate_band_px: offsets are proposed by pattern junctions this close to a reference junction's
         epipolar line. candidate_refs: how many reference junctions per component.
     outlier_sigma, max_residual_px: after the offset is chosen, a junction farther from its epipolar line
@@ -74,6 +83,8 @@ class LabelOptions:
     noise_floor_px: float = 0.1
     ambiguity_chi2: float = 25.0
     min_rms_ratio: float = 1.5
+    neighbour_noise: bool = True
+    frame_retry_limit: bool = True
     candidate_band_px: float = 4.0
     candidate_refs: int = 5
     outlier_sigma: float = 6.0
@@ -196,13 +207,17 @@ class _Choice:
     residual: np.ndarray | None = None  # (m,) projector px
     inside: np.ndarray | None = None  # (m,) bool, inside the depth range
     rms: tuple[float, float] = (float("nan"), float("nan"))  # best, runner-up
+    limit: float | None = None  # the outlier limit, when the inlier retry decided (decision 0123)
 
 
 def _choose_offset(
-    model: RigModel, rel: np.ndarray, ln: np.ndarray, xy_cam: np.ndarray, options: LabelOptions, stats: dict, *, _inlier_retry: bool = True
+    model: RigModel, rel: np.ndarray, ln: np.ndarray, xy_cam: np.ndarray, options: LabelOptions, stats: dict, *, _inlier_retry: bool = True,
+    members: np.ndarray | None = None, graph: _Graph | None = None, retry_limit_px: float = math.inf,
 ) -> _Choice:
     """Score every admissible integer offset of one component (relative labels rel (m, 2), epipolar lines
-    ln (m, 3), normalised camera points xy_cam (m, 2)) and apply the range and ambiguity tests."""
+    ln (m, 3), normalised camera points xy_cam (m, 2)) and apply the range and ambiguity tests. members (m,) the
+    component's junction ids and graph `_Graph` (the kept edges), both or neither: for the noise split of
+    decision 0122 (`_choice_of`); retry_limit_px: the inlier retry's limit at most this (decision 0123)."""
     rel = np.ascontiguousarray(rel, np.int64)
     ln = np.ascontiguousarray(ln, np.float64)
     xy_cam = np.ascontiguousarray(xy_cam, np.float64)
@@ -217,12 +232,48 @@ def _choose_offset(
         rel, ln, xy_cam, model.xy_junction, int(model.index_min), int(model.index_max), float(model.fx_proj),
         int(options.candidate_refs), float(options.candidate_band_px), float(options.min_inside_fraction), float(cap2),
         model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm))
-    return _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside)
+    return _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside,
+                      members=members, graph=graph, retry_limit_px=retry_limit_px)
+
+
+class _Graph:
+    """The kept edges' adjacency (`residual_clusters.kept_adjacency`), built on first use, and a work array pos
+    (M,) intp all −1, for `_ambiguity_kernels.neighbour_noise2`."""
+
+    def __init__(self, n: int, a: np.ndarray, b: np.ndarray, keep: np.ndarray):
+        self._args = (int(n), a, b, keep)
+        self._adj = None
+
+    def adjacency(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if self._adj is None:
+            n = self._args[0]
+            self._adj = (*kept_adjacency(*self._args), np.full(n, -1, np.intp))
+        return self._adj
+
+
+def _shared_error_test(model, rel, ln, off_best, s1, s2, n_eff, options, members, graph) -> bool:
+    """Decision 0122: the ambiguity test with the independent junction noise σn² (`neighbour_noise2` under the
+    best offset) taken out of both scores for the ratio condition: s2 − σn² ≥ min_rms_ratio²·max(s1 − σn², σ0²);
+    the likelihood condition M·(s2 − s1)/max(s1, σ0²) ≥ ambiguity_chi2 unchanged. False without the graph."""
+    if graph is None or members is None or rel is None or not options.neighbour_noise:
+        return False
+    sigma2 = max(s1, options.noise_floor_px**2)
+    if n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2:
+        return False
+    start, nbr, pos = graph.adjacency()
+    noise2, n_edges = _ak.neighbour_noise2(np.ascontiguousarray(members, np.intp), np.ascontiguousarray(rel, np.int64),
+                                           int(off_best[0]), int(off_best[1]), np.ascontiguousarray(ln, np.float64), model.xy_junction,
+                                           int(model.index_min), int(model.index_max), float(model.fx_proj), start, nbr, pos,
+                                           float(options.residual_cap_px**2))
+    if n_edges == 0 or not math.isfinite(noise2):
+        return False
+    return s2 - noise2 >= options.min_rms_ratio**2 * max(s1 - noise2, options.noise_floor_px**2)
 
 
 def _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside,
-               limit=None) -> _Choice:
-    """`_choose_offset`'s tests on `offset_choice`'s results (limit: `_outlier_limit(r_full)` when known)."""
+               limit=None, members=None, graph=None, retry_limit_px=math.inf) -> _Choice:
+    """`_choose_offset`'s tests on `offset_choice`'s results (limit: `_outlier_limit(r_full)` when known; members,
+    graph, retry_limit_px: see `_choose_offset`)."""
     if status != 0:
         if status >= 2:
             stats["out_of_pattern"] += 1
@@ -235,16 +286,31 @@ def _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_
     sigma2 = max(s1, options.noise_floor_px**2)
     rms = (math.sqrt(s1), math.sqrt(s2))
     lab = rel + off_best
-    if n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2 or s2 < options.min_rms_ratio**2 * sigma2:
+    if (n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2 or s2 < options.min_rms_ratio**2 * sigma2) and _shared_error_test(
+            model, rel, ln, off_best, s1, s2, n_eff, options, members, graph):
+        stats["ambiguity_noise_split"] = stats.get("ambiguity_noise_split", 0) + 1
+    elif n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2 or s2 < options.min_rms_ratio**2 * sigma2:
         # A component that mixes two surfaces (a bad edge) looks ambiguous as a whole: each offset fits one
         # part. Judge the best offset on its own inliers; if it wins there, the rest is split off later.
-        inl = np.isfinite(r_full) & (r_full <= (_outlier_limit(r_full, options) if limit is None else limit))
+        lim = min(_outlier_limit(r_full, options) if limit is None else limit, retry_limit_px)
+        inl = np.isfinite(r_full) & (r_full <= lim)
         if not _inlier_retry or inl.all() or inl.sum() < options.min_split_component:
             return _Choice("ambiguous", rms=rms)
-        sub = _choose_offset(model, rel[inl], ln[inl], xy_cam[inl], options, stats, _inlier_retry=False)
+        sub = _choose_offset(model, rel[inl], ln[inl], xy_cam[inl], options, stats, _inlier_retry=False,
+                             members=None if members is None else members[inl], graph=graph)
         if sub.reason is not None or not np.array_equal(sub.labels[0] - rel[inl][0], lab[0] - rel[0]):
             return _Choice("ambiguous", rms=rms)
+        return _Choice(None, lab, r_full, inside, rms, limit=lim)  # the inliers' limit: the same unless tightened
     return _Choice(None, lab, r_full, inside, rms)
+
+
+def _frame_retry_limit(residual: np.ndarray, options: LabelOptions, *, min_junctions: int = 20) -> float:
+    """Decision 0123: `_outlier_limit` of the residuals (M,) (projector px, NaN where none) of the junctions the first
+    round accepted: the frame's own junction noise, which a component with many wrong relative labels cannot
+    inflate. inf when switched off or with fewer than min_junctions accepted junctions."""
+    if not options.frame_retry_limit or int(np.isfinite(residual).sum()) < min_junctions:
+        return math.inf
+    return _outlier_limit(residual, options)
 
 
 def _outlier_limit(r: np.ndarray, options: LabelOptions) -> float:
@@ -259,7 +325,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
 
     xy_cam: (M, 2) normalised camera coordinates of obs.q_junction. stats["junctions_left_out"] counts the
     junctions left out by reason (LEFT_OUT_REASONS); stats["components_split"] the components cut at
-    outlier junctions.
+    outlier junctions; stats["ambiguity_noise_split"] (when any) the components accepted by decision 0122's test.
 
     Speed (decisions 0067, 0078, 0087): the graph walk (`clean_edges`, `_propagate`), the components' groups,
     each component's candidate offsets, scores, depth walk and residuals (`offset_choice`: one call) and the
@@ -301,6 +367,8 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm),
         float(options.outlier_sigma), float(options.max_residual_px), float(options.noise_floor_px**2),
         float(options.ambiguity_chi2), float(options.min_rms_ratio**2), labels, residual)
+    graph = _Graph(int(M), e_arrays[0], e_arrays[1], keep)  # the kept edges, for decision 0122's noise split
+    retry_limit = _frame_retry_limit(residual, options)  # decision 0123
     # Groups of junctions off their epipolar lines together (decision 0108): taken out like outliers.
     clusters = None
     stats["junctions_residual_clusters"] = 0
@@ -310,7 +378,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
 
         def _clusters(members, bad, n_bad):
             if not adj:
-                adj.extend(kept_adjacency(int(M), e_arrays[0], e_arrays[1], keep))
+                adj.extend(graph.adjacency()[:2])
             out, added = elevated_pieces(members, residual, bad, adj[0], adj[1], pos, float(options.cluster_factor),
                                          float(options.cluster_floor_px), int(options.cluster_min))
             if added == 0:
@@ -352,10 +420,12 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             ok_g = bool(g_ok[g])
             ch = _choice_of(model, rel[members] if ok_g else None, lines[members] if ok_g else None, xy_cam[members] if ok_g else None,
                             options, stats, True, int(g_status[g]), g_fail[g], ok_g, g_s1[g], g_s2[g], int(g_neff[g]),
-                            g_off[g], g_r[b0:b1] if ok_g else None, g_in[b0:b1] if ok_g else None, g_limit[g])
+                            g_off[g], g_r[b0:b1] if ok_g else None, g_in[b0:b1] if ok_g else None, g_limit[g], members=members, graph=graph,
+                            retry_limit_px=retry_limit)
             limit = float(g_limit[g])
         else:
-            ch = _choose_offset(model, rel[members], lines[members], xy_cam[members], options, stats)
+            ch = _choose_offset(model, rel[members], lines[members], xy_cam[members], options, stats, members=members, graph=graph,
+                                retry_limit_px=retry_limit)
         if not (g >= 0 and g_written[g]):
             if ch.reason is not None:
                 left[ch.reason] += m
@@ -365,6 +435,8 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             r = ch.residual
             # the inliers (finite residual within the outlier limit, inside the depth range) take their labels:
             # one compiled pass (decision 0087)
+            if ch.limit is not None:
+                limit = ch.limit if limit is None else min(limit, ch.limit)
             bad, n_bad = _k.write_component(members, ch.labels, r, ch.inside, float(_outlier_limit(r, options)) if limit is None else limit,
                                             labels, residual)
             inside_m = ch.inside

@@ -1,0 +1,61 @@
+"""Compiled part of the ambiguity test's noise split (decision 0122, `labelling._choice_of`).
+
+The ambiguity test's second condition (s2 ≥ min_rms_ratio²·max(s1, σ0²)) is there for error that every junction of
+a component shares, which no number of junctions averages away. s1 also holds the junctions' own position noise,
+which does average away. The two differ in one way a single frame can show: shared error is smooth across the
+component, so graph neighbours carry nearly the same signed residual, while independent noise makes neighbours
+differ. Half the mean squared difference of the signed residuals across the component's kept edges estimates the
+independent part.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from reconstruction._jit import njit
+
+
+@njit
+def neighbour_noise2(members, rel, off_i, off_j, ln, xy_junction, index_min, index_max, fx, start, nbr, pos, cap2):
+    """The independent junction noise of one component under one offset (module doc), in projector px².
+
+    members (m,) junction ids; rel (m, 2) their relative labels; (off_i, off_j) the offset; ln (m, 3) their
+    epipolar lines (normalised projector coordinates, (l0, l1) unit); xy_junction (L, L, 2) the pattern's
+    junctions (normalised); fx: the projector's focal length (px). start, nbr: the kept edges' CSR adjacency
+    (`residual_clusters.kept_adjacency`) over all junctions; pos (M,) intp all −1 (work space, restored on return).
+    The signed residual of a member is (l · (x, y, 1))·fx for its label rel + offset (NaN outside the pattern or
+    without a line). Over the kept edges with both ends in members and both residuals finite, each counted once,
+    returns (mean of min((r_a − r_b)², 2·cap2) / 2, number of such edges); (NaN, 0) without one. The cap matches
+    the offset score's (one junction far off weighs at most cap2, as in s1)."""
+    m = members.shape[0]
+    L = index_max - index_min + 1
+    r = np.full(m, np.nan)
+    for k in range(m):
+        pos[members[k]] = k
+        i = rel[k, 0] + off_i - index_min
+        j = rel[k, 1] + off_j - index_min
+        if 0 <= i < L and 0 <= j < L:
+            r[k] = (ln[k, 0] * xy_junction[i, j, 0] + ln[k, 1] * xy_junction[i, j, 1] + ln[k, 2]) * fx
+    total = 0.0
+    n = 0
+    lim = 2.0 * cap2
+    for k in range(m):
+        a = members[k]
+        if not math.isfinite(r[k]):
+            continue
+        for t in range(start[a], start[a + 1]):
+            b = nbr[t]
+            p = pos[b]
+            if p <= k or not math.isfinite(r[p]):
+                continue  # each edge once (from its lower position), both ends members with a residual
+            d = r[k] - r[p]
+            d2 = d * d
+            total += d2 if d2 < lim else lim
+            n += 1
+    for k in range(m):
+        pos[members[k]] = -1
+    if n == 0:
+        return np.nan, 0
+    return 0.5 * total / n, n
