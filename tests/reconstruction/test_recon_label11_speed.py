@@ -159,3 +159,38 @@ def test_one_sided_end_rows_are_the_ends_and_gap_rows_are_written(small_scene_pi
     assert np.isnan(c_q_g[acc_g]).all()
     fin = np.isfinite(c_q_g[:, 0])
     assert fin.any() and (np.isfinite(c_q_g[:, 1]) == fin).all()
+
+
+def test_needed_samples_read_each_cell_once_give_the_same_ids_in_order():
+    """`surface_labels._k_needed` reads a cell at its first visit only; the former loop read it at every visit."""
+    from reconstruction.surface_labels import _k_cell_box, _k_needed
+
+    rng = np.random.default_rng(12)
+    P, cell, gw, gh = 3000, 6.0, 30, 25
+    q = np.column_stack([rng.uniform(0, gw * cell, P), rng.uniform(0, gh * cell, P)])
+    key = (q[:, 1] // cell).astype(np.intp) * gw + (q[:, 0] // cell).astype(np.intp)
+    items = np.argsort(key, kind="stable").astype(np.intp)
+    start = np.searchsorted(key[items], np.arange(gw * gh + 1)).astype(np.intp)
+    index = np.where(rng.random(P) < 0.7, rng.integers(-5, 5, P).astype(float), np.nan)
+    w = np.where(rng.random(P) < 0.3, 1.0, np.nan)
+    cen = rng.uniform(0, min(gw, gh) * cell, (80, 2))  # overlapping neighbourhoods
+    rad = rng.uniform(5.0, 25.0, 80)
+    seen0 = rng.random(P) < 0.1
+    # the former loop, every cell read at every visit
+    seen_ref = seen0.copy()
+    want = []
+    for r in range(len(cen)):
+        gx0, gx1, gy0, gy1 = _k_cell_box(cen[r, 0], cen[r, 1], rad[r], 0.0, 0.0, cell, gw, gh)
+        for yy in range(gy0, gy1 + 1):
+            for xx in range(gx0, gx1 + 1):
+                b = yy * gw + xx
+                for s in items[start[b]:start[b + 1]]:
+                    if seen_ref[s] or not np.isfinite(index[s]) or np.isfinite(w[s]):
+                        continue
+                    seen_ref[s] = True
+                    want.append(s)
+    seen = seen0.copy()
+    got = _k_needed(cen, rad, index, w, seen, 0.0, 0.0, cell, gw, gh, start, items)
+    assert len(want) > 100
+    np.testing.assert_array_equal(got, np.array(want, np.intp))
+    np.testing.assert_array_equal(seen, seen_ref)
