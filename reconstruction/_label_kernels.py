@@ -1716,6 +1716,193 @@ def offset_scores(rel, ln, xy_junction, index_min, index_max, fx, n_refs, band_p
     return 0, off, score, ranked, n_ok
 
 
+_BLOCK = 8  # pattern junctions per side of `junction_blocks`' blocks
+
+
+@njit
+def junction_blocks(xy_junction, B):
+    """The bounding boxes (nA, nB, 4) [x_min, x_max, y_min, y_max] of the pattern's junctions xy_junction (L, L, 2) in
+    blocks of B × B (a, b) (the last ones smaller); NaN junctions are left out (a block of them only: x_min > x_max)."""
+    L0 = xy_junction.shape[0]
+    L1 = xy_junction.shape[1]
+    nA = (L0 + B - 1) // B
+    nB = (L1 + B - 1) // B
+    box = np.empty((nA, nB, 4))
+    for ba in range(nA):
+        for bb in range(nB):
+            x0 = np.inf
+            x1 = -np.inf
+            y0 = np.inf
+            y1 = -np.inf
+            for a in range(ba * B, min(ba * B + B, L0)):
+                for b in range(bb * B, min(bb * B + B, L1)):
+                    x = xy_junction[a, b, 0]
+                    y = xy_junction[a, b, 1]
+                    if x < x0:
+                        x0 = x
+                    if x > x1:
+                        x1 = x
+                    if y < y0:
+                        y0 = y
+                    if y > y1:
+                        y1 = y
+            box[ba, bb, 0] = x0
+            box[ba, bb, 1] = x1
+            box[ba, bb, 2] = y0
+            box[ba, bb, 3] = y1
+    return box
+
+
+@njit
+def offset_scores_b(rel, ln, xy_junction, blocks, B, index_min, index_max, fx, n_refs, band_px, min_inside, cap2):
+    """`offset_scores` given `junction_blocks(xy_junction, B)` (decision 0124): the same outputs, bit for bit
+    (`offset_scores` stays the reference and the path of `offset_choice`).
+    The candidates are read block by block, skipping a block whose bounding box lies entirely farther than
+    band_px from the reference's line (the line's value is affine: its extremes over the box are at the corners;
+    the margin, 1e-9 of the terms' magnitudes, is far above the rounding of either side); the candidates' keys
+    are then sorted as before (np.unique), so the order they are found in does not matter. The admissibility
+    counts are the same integers, from a 2-D prefix sum over the relative labels where that is cheaper than
+    the direct count."""
+    m = rel.shape[0]
+    L = index_max - index_min + 1
+    ok = np.empty(m, np.bool_)
+    n_ok = 0
+    for a in range(m):
+        ok[a] = math.isfinite(ln[a, 0]) and math.isfinite(ln[a, 1]) and math.isfinite(ln[a, 2])
+        if ok[a]:
+            n_ok += 1
+    off = np.zeros((0, 2), np.int64)
+    score = np.zeros(0)
+    ranked = np.zeros(0, np.intp)
+    if n_ok == 0:
+        return 1, off, score, ranked, n_ok
+    okpos = np.empty(n_ok, np.intp)
+    c = 0
+    for a in range(m):
+        if ok[a]:
+            okpos[c] = a
+            c += 1
+    num = min(n_refs, n_ok)
+    pick = np.empty(num, np.intp)
+    if num == 1:
+        pick[0] = 0
+    else:
+        step = (n_ok - 1) / (num - 1)
+        for i in range(num - 1):
+            pick[i] = int(i * step + 0.0)
+        pick[num - 1] = n_ok - 1
+    refs = np.unique(okpos[pick])
+    # candidate keys (I, J) -> (I − I0)·S + (J − J0), I0/J0 and S covering every possible offset
+    rmin0 = rel[:, 0].min()
+    rmax0 = rel[:, 0].max()
+    rmin1 = rel[:, 1].min()
+    rmax1 = rel[:, 1].max()
+    I0 = index_min - rmax0
+    J0 = index_min - rmax1
+    S = (index_max - rmin1) - J0 + 1
+    keys = np.empty(refs.shape[0] * L * L, np.int64)
+    nk = 0
+    nA = blocks.shape[0]
+    nB = blocks.shape[1]
+    for r in refs:
+        l0 = ln[r, 0]
+        l1 = ln[r, 1]
+        l2 = ln[r, 2]
+        for ba in range(nA):
+            for bb in range(nB):
+                x0 = blocks[ba, bb, 0]
+                x1 = blocks[ba, bb, 1]
+                y0 = blocks[ba, bb, 2]
+                y1 = blocks[ba, bb, 3]
+                if not (x0 <= x1 and y0 <= y1):
+                    continue  # no finite junction in the block
+                vx0 = x0 * l0
+                vx1 = x1 * l0
+                vy0 = y0 * l1
+                vy1 = y1 * l1
+                lo = min(vx0, vx1) + min(vy0, vy1) + l2
+                hi = max(vx0, vx1) + max(vy0, vy1) + l2
+                marg = 1e-9 * (max(abs(vx0), abs(vx1)) + max(abs(vy0), abs(vy1)) + abs(l2) + band_px / fx)
+                if lo - marg > band_px / fx or hi + marg < -band_px / fx:
+                    continue
+                for a in range(ba * B, min(ba * B + B, L)):
+                    for b in range(bb * B, min(bb * B + B, L)):
+                        d = abs(xy_junction[a, b, 0] * l0 + xy_junction[a, b, 1] * l1 + l2) * fx
+                        if d <= band_px:
+                            I = a + index_min - rel[r, 0]
+                            J = b + index_min - rel[r, 1]
+                            keys[nk] = (I - I0) * S + (J - J0)
+                            nk += 1
+    if nk == 0:
+        return 2, off, score, ranked, n_ok
+    ks = np.unique(keys[:nk])
+    C_all = ks.shape[0]
+    adm = np.zeros(C_all, np.bool_)
+    n_adm = 0
+    w0 = rmax0 - rmin0 + 1
+    w1 = rmax1 - rmin1 + 1
+    if C_all * m > 4 * (w0 + 1) * (w1 + 1):
+        # cnt = #{a: index_min ≤ rel[a] + (oi, oj) ≤ index_max}: a rectangle of the relative labels' histogram
+        cum = np.zeros((w0 + 1, w1 + 1), np.int64)
+        for a in range(m):
+            cum[rel[a, 0] - rmin0 + 1, rel[a, 1] - rmin1 + 1] += 1
+        for u in range(1, w0 + 1):
+            for v in range(1, w1 + 1):
+                cum[u, v] += cum[u - 1, v] + cum[u, v - 1] - cum[u - 1, v - 1]
+        for k in range(C_all):
+            oi = ks[k] // S + I0
+            oj = ks[k] % S + J0
+            u0 = max(index_min - oi - rmin0, 0)
+            u1 = min(index_max - oi - rmin0, w0 - 1)
+            v0 = max(index_min - oj - rmin1, 0)
+            v1 = min(index_max - oj - rmin1, w1 - 1)
+            cnt = 0
+            if u0 <= u1 and v0 <= v1:
+                cnt = cum[u1 + 1, v1 + 1] - cum[u0, v1 + 1] - cum[u1 + 1, v0] + cum[u0, v0]
+            if cnt / m >= min_inside:
+                adm[k] = True
+                n_adm += 1
+    else:
+        for k in range(C_all):
+            oi = ks[k] // S + I0
+            oj = ks[k] % S + J0
+            cnt = 0
+            for a in range(m):
+                i = rel[a, 0] + oi
+                j = rel[a, 1] + oj
+                if i >= index_min and i <= index_max and j >= index_min and j <= index_max:
+                    cnt += 1
+            if cnt / m >= min_inside:
+                adm[k] = True
+                n_adm += 1
+    if n_adm == 0:
+        return 3, off, score, ranked, n_ok
+    off = np.empty((n_adm, 2), np.int64)
+    c = 0
+    for k in range(C_all):
+        if adm[k]:
+            off[c, 0] = ks[k] // S + I0
+            off[c, 1] = ks[k] % S + J0
+            c += 1
+    score = np.empty(n_adm)
+    row = np.empty(n_ok)
+    for k in range(n_adm):
+        for t in range(n_ok):
+            a = okpos[t]
+            i = rel[a, 0] + off[k, 0]
+            j = rel[a, 1] + off[k, 1]
+            if i >= index_min and i <= index_max and j >= index_min and j <= index_max:
+                x = xy_junction[i - index_min, j - index_min, 0]
+                y = xy_junction[i - index_min, j - index_min, 1]
+                res = abs(ln[a, 0] * x + ln[a, 1] * y + ln[a, 2]) * fx
+                row[t] = min(res * res, cap2)
+            else:
+                row[t] = cap2
+        score[k] = _pairwise_sum(row, 0, n_ok) / n_ok
+    ranked = np.argsort(score, kind="mergesort")
+    return 0, off, score, ranked, n_ok
+
+
 @njit
 def median_finite(r):
     """np.median of the finite values of r (NaN when none)."""
@@ -2549,16 +2736,9 @@ def label_arrays(q, family, unlabelled):
 
 
 @njit
-def offset_choice(rel, ln, xy_cam, xy_junction, index_min, index_max, fx, n_refs, band_px, min_inside, cap2, R, t, z_min,
-                  z_max):
-    """labelling._choose_offset's compiled part in one call (decision 0087): `offset_scores`, the depth walk
-    over the 16 best (`offset_depth_walk`) and the best offset's residuals (`offset_residuals`), in that
-    order with the same arguments. Returns status (offset_scores'), n_fail (offsets outside the depth range,
-    0 when status ≠ 0), ok (an offset passed the walk), s1 and s2 (the scores of the best two passing
-    offsets; s2 = cap2 without a second), n_eff, off_best (2,) int64, r_full (m,) and inside (m,) (the walk's
-    output; empty unless ok)."""
-    status, off, score, ranked, n_eff = offset_scores(rel, ln, xy_junction, index_min, index_max, fx, n_refs, band_px,
-                                                      min_inside, cap2)
+def _choice_from_scores(status, off, score, ranked, n_eff, rel, ln, xy_cam, xy_junction, index_min, index_max, fx, min_inside, cap2,
+                        R, t, z_min, z_max):
+    """`offset_choice` after `offset_scores`: the depth walk over the 16 best and the best offset's residuals."""
     off_best = np.zeros(2, np.int64)
     if status != 0:
         return status, 0, False, 0.0, 0.0, n_eff, off_best, np.empty(0), np.empty(0, np.bool_)
@@ -2574,6 +2754,31 @@ def offset_choice(rel, ln, xy_cam, xy_junction, index_min, index_max, fx, n_refs
     off_best[1] = off[best, 1]
     r_full = offset_residuals(rel, off_best[0], off_best[1], ln, xy_junction, index_min, index_max, fx)
     return status, n_fail, True, s1, s2, n_eff, off_best, r_full, inside
+
+
+@njit
+def offset_choice(rel, ln, xy_cam, xy_junction, index_min, index_max, fx, n_refs, band_px, min_inside, cap2, R, t, z_min,
+                  z_max):
+    """labelling._choose_offset's compiled part in one call (decision 0087): `offset_scores`, the depth walk
+    over the 16 best (`offset_depth_walk`) and the best offset's residuals (`offset_residuals`), in that
+    order with the same arguments. Returns status (offset_scores'), n_fail (offsets outside the depth range,
+    0 when status ≠ 0), ok (an offset passed the walk), s1 and s2 (the scores of the best two passing
+    offsets; s2 = cap2 without a second), n_eff, off_best (2,) int64, r_full (m,) and inside (m,) (the walk's
+    output; empty unless ok)."""
+    status, off, score, ranked, n_eff = offset_scores(rel, ln, xy_junction, index_min, index_max, fx, n_refs, band_px,
+                                                      min_inside, cap2)
+    return _choice_from_scores(status, off, score, ranked, n_eff, rel, ln, xy_cam, xy_junction, index_min, index_max, fx,
+                               min_inside, cap2, R, t, z_min, z_max)
+
+
+@njit
+def offset_choice_b(rel, ln, xy_cam, xy_junction, blocks, B, index_min, index_max, fx, n_refs, band_px, min_inside, cap2, R, t, z_min,
+                  z_max):
+    """`offset_choice` with `offset_scores_b` on the given blocks (`junction_blocks(xy_junction, B)`): the same outputs."""
+    status, off, score, ranked, n_eff = offset_scores_b(rel, ln, xy_junction, blocks, B, index_min, index_max, fx, n_refs, band_px,
+                                                      min_inside, cap2)
+    return _choice_from_scores(status, off, score, ranked, n_eff, rel, ln, xy_cam, xy_junction, index_min, index_max, fx,
+                               min_inside, cap2, R, t, z_min, z_max)
 
 
 @njit
@@ -2680,6 +2885,7 @@ def offset_choice_groups(order, bounds, min_component, rel, ln, xy_cam, xy_junct
     `write_component` writes it (labels rel + off, residual, where not bad): written[g] True, its bad members
     in bad (n,) and their number n_bad[g]; the ambiguous ones (the inlier retry) are left to the caller."""
     G = bounds.shape[0] - 1
+    blocks = junction_blocks(xy_junction, _BLOCK)  # once for every group (decision 0124)
     n = order.shape[0]
     status = np.full(G, -1, np.int64)
     n_fail = np.zeros(G, np.int64)
@@ -2711,7 +2917,7 @@ def offset_choice_groups(order, bounds, min_component, rel, ln, xy_cam, xy_junct
             lg[a, 2] = ln[i, 2]
             xg[a, 0] = xy_cam[i, 0]
             xg[a, 1] = xy_cam[i, 1]
-        st, nf, okg, a1, a2, ne, ob, r_full, inside = offset_choice(rg, lg, xg, xy_junction, index_min, index_max, fx, n_refs,
+        st, nf, okg, a1, a2, ne, ob, r_full, inside = offset_choice_b(rg, lg, xg, xy_junction, blocks, _BLOCK, index_min, index_max, fx, n_refs,
                                                                    band_px, min_inside, cap2, R, t, z_min, z_max)
         status[g] = st
         n_fail[g] = nf

@@ -554,8 +554,8 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
     cap = max(n - 1, 1)  # at most one gap per consecutive pair
     gaps = np.empty((cap, 8))
     why = np.zeros(6, np.int64)  # gaps rejected: anchors out of range, anchors not one run, anchors off their line, turn, lateral
-    acc = np.zeros(cap, np.bool_)
-    c_q = np.full((cap, 2), np.nan)
+    acc = np.empty(cap, np.bool_)  # each row written when it is made (below), not filled ahead
+    c_q = np.empty((cap, 2))
     G = 0
     n_gaps = 0
     hits = np.empty(sitems.shape[0], np.intp)  # the other family's samples in the disc, in search order
@@ -627,6 +627,9 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
         gaps[G, 5] = ca
         gaps[G, 6] = kb
         gaps[G, 7] = cb
+        acc[G] = False
+        c_q[G, 0] = np.nan
+        c_q[G, 1] = np.nan
         rmid = _curve_r(sm, L, ka, ca, kb, cb)
         mx = q[a, 0] + sm * ux - rmid * uy
         my = q[a, 1] + sm * uy + rmid * ux

@@ -248,11 +248,17 @@ def _k_needed(cen, rad, index, w, seen, x0, y0, cell, gw, gh, start, items):
     seen (P,) bool is scratch, marked for the returned ids (and left marked)."""
     out = np.empty(items.shape[0], np.intp)
     m = 0
+    # a cell is read at its first visit only: nothing it could add later is unseen then (index and w do not change
+    # here), so the ids and their order are those of reading it at every visit (decision 0124)
+    visited = np.zeros(gw * gh, np.bool_)
     for r in range(cen.shape[0]):
         gx0, gx1, gy0, gy1 = _k_cell_box(cen[r, 0], cen[r, 1], rad[r], x0, y0, cell, gw, gh)
         for yy in range(gy0, gy1 + 1):
             for xx in range(gx0, gx1 + 1):
                 b = yy * gw + xx
+                if visited[b]:
+                    continue
+                visited[b] = True
                 for t in range(start[b], start[b + 1]):
                     s = items[t]
                     if seen[s] or not math.isfinite(index[s]) or math.isfinite(w[s]):
