@@ -1533,18 +1533,70 @@ def samples_f64(qx32, qy32, strength):
 
 
 @njit
-def shared_ring_counts(n_ring, cx32, cy32, qx, qy, fam, near_dist, row_start, r0, r_att):
-    """Ring counts for candidates squeezed between neighbours (decision 0120): (ns, 2) int64, `n_ring` where a
-    candidate has ≥ 2 ring samples of each family, elsewhere the samples of each family at a distance in
-    (r0, r_att] (float32) of candidate (cx32, cy32) whatever candidate is nearest to them, except samples
-    within r0 of their nearest candidate (`near_dist`, another crossing's core). Samples are in scan order
-    (`row_start`: the first sample of each working row). Where crossings along a line are only a few px apart,
-    the Voronoi cells of `ring_counts` hold at most one sample per side of that line, shared with the
-    neighbour."""
+def compressed_spacing(n_ring, cx, cy, r0, r_att):
+    """For the candidates short of ring samples (`ring_counts`: < 2 of a family): the spacing (px) of the row
+    of crossings they sit in, 0 where they sit in none (decision 0120). A crossing whose neighbours along one
+    line are only a few px away (the other family's lines compressed by an oblique surface) has two
+    neighbouring candidates on opposite sides (directions within ~20° of opposite) at nearly the same distance
+    d (within 25 %), with 2·r0 < d ≤ min(2·r_att, 2·r0 + 4) (cores apart; the Voronoi boundary d/2 inside the
+    ring and within 2 px of the core, where samples 1 px apart along the line leave fewer than 2 there), and no
+    candidate closer than 2·r0 (a second candidate on the same crossing). (ns,) float64; cx, cy float64."""
+    ns = len(cx)
+    out = np.zeros(ns)
+    order = np.argsort(cy)
+    ys = cy[order]
+    lo_d = 2.0 * r0
+    hi_d = min(2.0 * r_att, 2.0 * r0 + 4.0)
+    for k in range(ns):
+        if n_ring[k, 0] >= 2 and n_ring[k, 1] >= 2:
+            continue
+        a = np.searchsorted(ys, cy[k] - hi_d)
+        b = np.searchsorted(ys, cy[k] + hi_d, side="right")
+        n = 0
+        dup = False
+        nbx = np.empty(b - a)
+        nby = np.empty(b - a)
+        nbd = np.empty(b - a)
+        for t in range(a, b):
+            m = order[t]
+            if m == k:
+                continue
+            dx = cx[m] - cx[k]
+            dy = cy[m] - cy[k]
+            d = math.sqrt(dx * dx + dy * dy)
+            if d <= lo_d:
+                dup = True
+                break
+            if d <= hi_d:
+                nbx[n] = dx / d
+                nby[n] = dy / d
+                nbd[n] = d
+                n += 1
+        if dup:
+            continue
+        best = 0.0
+        for p in range(n):
+            for q in range(p + 1, n):
+                if nbx[p] * nbx[q] + nby[p] * nby[q] < -0.94 and abs(nbd[p] - nbd[q]) <= 0.25 * max(nbd[p], nbd[q]):
+                    d = 0.5 * (nbd[p] + nbd[q])
+                    if best == 0.0 or d < best:
+                        best = d
+        out[k] = best
+    return out
+
+
+@njit
+def shared_ring_counts(n_ring, spacing, cx32, cy32, qx, qy, fam, near_dist, row_start, r0, r_att):
+    """Ring counts for candidates in a row of compressed crossings (`compressed_spacing` > 0; decision 0120):
+    (ns, 2) int64, `n_ring` elsewhere; there the samples of each family at a distance in (r0, r_att] (float32)
+    of candidate (cx32, cy32) whatever candidate is nearest to them, except samples within r0 of their nearest
+    candidate (`near_dist`: another crossing's core). Samples are in scan order (`row_start`: the first sample
+    of each working row). Where crossings along a line are only a few px apart, the Voronoi cells of
+    `ring_counts` hold at most one sample per side of that line, shared with the neighbour."""
     out = n_ring.copy()
     Hw = len(row_start) - 1
     for k in range(len(cx32)):
-        if n_ring[k, 0] >= 2 and n_ring[k, 1] >= 2:
+        if spacing[k] <= 0.0:
             continue
         c0 = 0
         c1 = 0
@@ -1571,7 +1623,7 @@ def shared_ring_counts(n_ring, cx32, cy32, qx, qy, fam, near_dist, row_start, r0
 @njit
 def shared_arm_fits(fits, core, row_start, fam, qx, qy, nx, ny, sx, sy, R32):
     """Refit, in place, the arms that have fewer than 3 samples (`junction_fits`' outputs `fits`, rows
-    2·k + family − 1) from every sample of that family within R32 (float32) of candidate k outside the
+    2·k + family − 1) from every sample of that family within R32[k] (float32, per candidate) of candidate k outside the
     crossings' cores (`core`), whichever segment holds it or none: where the other family's lines are a few px
     apart, a line's pieces between two crossings hold one or two samples, too few to be segments or shared by
     both crossings (decision 0120). Samples in scan order (`row_start`). A row is replaced only where the new
@@ -1582,11 +1634,11 @@ def shared_arm_fits(fits, core, row_start, fam, qx, qy, nx, ny, sx, sy, R32):
     Hw = len(row_start) - 1
     want = np.zeros(G, np.bool_)
     cap = 0
-    rr = int(math.ceil(R32)) + 1
     for g in range(G):
         if cnt[g] < 3:
             want[g] = True
             c = g // 2
+            rr = int(math.ceil(R32[c])) + 1
             cy = int(sy[c])
             cap += row_start[min(cy + rr + 1, Hw)] - row_start[max(cy - rr, 0)]
     if cap == 0:
@@ -1605,12 +1657,13 @@ def shared_arm_fits(fits, core, row_start, fam, qx, qy, nx, ny, sx, sy, R32):
         cx32 = np.float32(sx[c])
         cy32 = np.float32(sy[c])
         cy = int(sy[c])
+        rr = int(math.ceil(R32[c])) + 1
         for t in range(row_start[max(cy - rr, 0)], row_start[min(cy + rr + 1, Hw)]):
             if fam[t] != f or core[t]:
                 continue
             dx = qx[t] - cx32
             dy = qy[t] - cy32
-            if np.float32(math.sqrt(dx * dx + dy * dy)) <= R32:
+            if np.float32(math.sqrt(dx * dx + dy * dy)) <= R32[c]:
                 grp[na] = g
                 X[na] = np.float64(qx[t])
                 Y[na] = np.float64(qy[t])

@@ -447,12 +447,16 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     if options.debug:
         stats["debug_raw_candidates"] = seeds * scale
     # samples near each candidate; a candidate is a crossing only where both families come close
+    spacing = np.zeros(len(seeds))  # per kept candidate: the spacing of its row of compressed crossings, 0: none
     if len(seeds) and P:
         near, dist = look_dist(seed_grid, qx32, qy32, seeds, r_att)
         n_ring = _k.ring_counts(near, dist, fam, np.float32(r0), len(seeds))
+        if options.debug:
+            stats["debug_ring_own"] = n_ring
         if options.shared_arms and scale == 1:  # crossings a few px apart share their ring samples (0120)
             s32 = np.asarray(seeds, np.float32).reshape(-1, 2)
-            n_ring = _k.shared_ring_counts(n_ring, s32[:, 0].copy(), s32[:, 1].copy(), qx32, qy32, fam, dist,
+            spacing_raw = _k.compressed_spacing(n_ring, seeds[:, 0].copy(), seeds[:, 1].copy(), r0, r_att)
+            n_ring = _k.shared_ring_counts(n_ring, spacing_raw, s32[:, 0].copy(), s32[:, 1].copy(), qx32, qy32, fam, dist,
                                            row_start, np.float32(r0), np.float32(r_att))
         if options.debug:
             stats["debug_ring"] = n_ring
@@ -461,6 +465,9 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         remap_seed, seeds, seed_score, seeds_x, seeds_y, seeds_x32, seeds_y32, n_few = _k.keep_crossings(n_ring, seeds, seed_score)
         reasons["too_few_samples"] = int(n_few)
         core = _k.crossing_cores(near, dist, remap_seed, np.float32(r0))  # samples within r0 of a kept one
+        if options.shared_arms and scale == 1:
+            spacing = np.zeros(len(seeds))
+            spacing[remap_seed[remap_seed >= 0]] = spacing_raw[remap_seed >= 0]
     else:
         remap_seed = np.arange(len(seeds))
         core = np.zeros(P, bool)
@@ -513,10 +520,10 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
                 options.free_end_trim_sigma * s_w, (fam, qx32, qy32, nx32, ny32), (seeds_x, seeds_y),
                 rms_tol=options.max_segment_rms_px / scale, sin_tol=float(np.sin(np.deg2rad(options.max_arm_turn_deg))),
                 r_short=max(options.arm_short_share * R, r_att + 1.0) if options.arm_short_share > 0 else 0.0)
-        if options.shared_arms and scale == 1:  # arms of one or two samples: the whole attached segments (0120)
+        if options.shared_arms and scale == 1:  # arms of one or two samples: the samples around it (0120)
             stats["junctions_shared_arms"] = _k.shared_arm_fits(
                 (cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin), core, row_start, fam,
-                qx32, qy32, nx32, ny32, seeds_x, seeds_y, np.float32(R))
+                qx32, qy32, nx32, ny32, seeds_x, seeds_y, np.maximum(R, 1.5 * spacing).astype(np.float32))
         # in one kernel (decision 0079), in this order, each reason counting the candidates still valid:
         # a line that jumps sideways at the crossing (a depth edge: two surfaces' lines meeting) is no
         # crossing: compare the mean signed offsets from the fit on both sides; and with few samples the
