@@ -1533,6 +1533,30 @@ def samples_f64(qx32, qy32, strength):
 
 
 @njit
+def _row_span(row_start, u, r, u_lo, u_hi):
+    """The samples of working row r (scan order: u rising within a row) with u_lo ≤ u ≤ u_hi: [a, b)."""
+    lo = row_start[r]
+    hi = row_start[r + 1]
+    a = lo
+    b = hi
+    while a < b:
+        mid = (a + b) >> 1
+        if u[mid] < u_lo:
+            a = mid + 1
+        else:
+            b = mid
+    first = a
+    b = hi
+    while a < b:
+        mid = (a + b) >> 1
+        if u[mid] <= u_hi:
+            a = mid + 1
+        else:
+            b = mid
+    return first, a
+
+
+@njit
 def compressed_spacing(n_ring, cx, cy, r0, r_att):
     """For the candidates short of ring samples (`ring_counts`: < 2 of a family): the spacing (px) of the row
     of crossings they sit in, 0 where they sit in none (decision 0120). A crossing whose neighbours along one
@@ -1586,7 +1610,7 @@ def compressed_spacing(n_ring, cx, cy, r0, r_att):
 
 
 @njit
-def shared_ring_counts(n_ring, spacing, cx32, cy32, qx, qy, fam, near_dist, row_start, r0, r_att):
+def shared_ring_counts(n_ring, spacing, cx32, cy32, qx, qy, fam, near_dist, row_start, u, r0, r_att):
     """Ring counts for candidates in a row of compressed crossings (`compressed_spacing` > 0; decision 0120):
     (ns, 2) int64, `n_ring` elsewhere; there the samples of each family at a distance in (r0, r_att] (float32)
     of candidate (cx32, cy32) whatever candidate is nearest to them, except samples within r0 of their nearest
@@ -1603,8 +1627,11 @@ def shared_ring_counts(n_ring, spacing, cx32, cy32, qx, qy, fam, near_dist, row_
         ra = np.float32(r_att)
         lo_r = max(int(math.floor(cy32[k] - ra)) - 1, 0)
         hi_r = min(int(math.ceil(cy32[k] + ra)) + 1, Hw - 1)
+        u_lo = int(math.floor(cx32[k] - ra)) - 1
+        u_hi = int(math.ceil(cx32[k] + ra)) + 1
         for r in range(lo_r, hi_r + 1):
-            for i in range(row_start[r], row_start[r + 1]):
+            a, b = _row_span(row_start, u, r, u_lo, u_hi)
+            for i in range(a, b):
                 if near_dist[i] <= r0:
                     continue
                 dx = qx[i] - cx32[k]
@@ -1621,7 +1648,7 @@ def shared_ring_counts(n_ring, spacing, cx32, cy32, qx, qy, fam, near_dist, row_
 
 
 @njit
-def shared_arm_fits(fits, core, row_start, fam, qx, qy, nx, ny, sx, sy, R32):
+def shared_arm_fits(fits, core, row_start, u, fam, qx, qy, nx, ny, sx, sy, R32):
     """Refit, in place, the arms that have fewer than 3 samples (`junction_fits`' outputs `fits`, rows
     2·k + family − 1) from every sample of that family within R32[k] (float32, per candidate) of candidate k outside the
     crossings' cores (`core`), whichever segment holds it or none: where the other family's lines are a few px
@@ -1640,7 +1667,10 @@ def shared_arm_fits(fits, core, row_start, fam, qx, qy, nx, ny, sx, sy, R32):
             c = g // 2
             rr = int(math.ceil(R32[c])) + 1
             cy = int(sy[c])
-            cap += row_start[min(cy + rr + 1, Hw)] - row_start[max(cy - rr, 0)]
+            cx = int(sx[c])
+            for r in range(max(cy - rr, 0), min(cy + rr, Hw - 1) + 1):
+                a, b = _row_span(row_start, u, r, cx - rr, cx + rr)
+                cap += b - a
     if cap == 0:
         return 0
     grp = np.empty(cap, np.int64)
@@ -1657,19 +1687,22 @@ def shared_arm_fits(fits, core, row_start, fam, qx, qy, nx, ny, sx, sy, R32):
         cx32 = np.float32(sx[c])
         cy32 = np.float32(sy[c])
         cy = int(sy[c])
+        cx = int(sx[c])
         rr = int(math.ceil(R32[c])) + 1
-        for t in range(row_start[max(cy - rr, 0)], row_start[min(cy + rr + 1, Hw)]):
-            if fam[t] != f or core[t]:
-                continue
-            dx = qx[t] - cx32
-            dy = qy[t] - cy32
-            if np.float32(math.sqrt(dx * dx + dy * dy)) <= R32[c]:
-                grp[na] = g
-                X[na] = np.float64(qx[t])
-                Y[na] = np.float64(qy[t])
-                NX[na] = np.float64(nx[t])
-                NY[na] = np.float64(ny[t])
-                na += 1
+        for r in range(max(cy - rr, 0), min(cy + rr, Hw - 1) + 1):
+            a, b = _row_span(row_start, u, r, cx - rr, cx + rr)
+            for t in range(a, b):
+                if fam[t] != f or core[t]:
+                    continue
+                dx = qx[t] - cx32
+                dy = qy[t] - cy32
+                if np.float32(math.sqrt(dx * dx + dy * dy)) <= R32[c]:
+                    grp[na] = g
+                    X[na] = np.float64(qx[t])
+                    Y[na] = np.float64(qy[t])
+                    NX[na] = np.float64(nx[t])
+                    NY[na] = np.float64(ny[t])
+                    na += 1
     c2, d2, r2, n2, neg2, pos2, mn2, mp2, ms2 = _fits_of_groups(grp, X, Y, NX, NY, na, G, sx, sy)
     done = np.zeros(ns, np.bool_)
     for g in range(G):

@@ -457,7 +457,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
             s32 = np.asarray(seeds, np.float32).reshape(-1, 2)
             spacing_raw = _k.compressed_spacing(n_ring, seeds[:, 0].copy(), seeds[:, 1].copy(), r0, r_att)
             n_ring = _k.shared_ring_counts(n_ring, spacing_raw, s32[:, 0].copy(), s32[:, 1].copy(), qx32, qy32, fam, dist,
-                                           row_start, np.float32(r0), np.float32(r_att))
+                                           row_start, u, np.float32(r0), np.float32(r_att))
         if options.debug:
             stats["debug_ring"] = n_ring
         # the kept candidates (≥ 2 ring samples of each family), renumbered, and their coordinates as the
@@ -522,7 +522,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
                 r_short=max(options.arm_short_share * R, r_att + 1.0) if options.arm_short_share > 0 else 0.0)
         if options.shared_arms and scale == 1:  # arms of one or two samples: the samples around it (0120)
             stats["junctions_shared_arms"] = _k.shared_arm_fits(
-                (cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin), core, row_start, fam,
+                (cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin), core, row_start, u, fam,
                 qx32, qy32, nx32, ny32, seeds_x, seeds_y, np.maximum(R, 1.5 * spacing).astype(np.float32))
         # in one kernel (decision 0079), in this order, each reason counting the candidates still valid:
         # a line that jumps sideways at the crossing (a depth edge: two surfaces' lines meeting) is no
