@@ -1557,9 +1557,9 @@ def _row_span(row_start, u, r, u_lo, u_hi):
 
 
 @njit
-def compressed_spacing(cx, cy, r0, r_att):
-    """Per candidate: the spacing (px) of the row of compressed crossings it sits in, 0 where it sits in none
-    (decision 0120). A crossing whose neighbours along one
+def compressed_spacing(n_ring, cx, cy, r0, r_att):
+    """For the candidates short of ring samples (`ring_counts`: < 2 of a family): the spacing (px) of the row
+    of crossings they sit in, 0 where they sit in none (decision 0120). A crossing whose neighbours along one
     line are only a few px away (the other family's lines compressed by an oblique surface) has two
     neighbouring candidates on opposite sides (directions within ~20° of opposite) at nearly the same distance
     d (within 25 %), with 2·r0 < d ≤ min(2·r_att, 2·r0 + 4) (cores apart; the Voronoi boundary d/2 inside the
@@ -1572,6 +1572,8 @@ def compressed_spacing(cx, cy, r0, r_att):
     lo_d = 2.0 * r0
     hi_d = min(2.0 * r_att, 2.0 * r0 + 4.0)
     for k in range(ns):
+        if n_ring[k, 0] >= 2 and n_ring[k, 1] >= 2:
+            continue
         a = np.searchsorted(ys, cy[k] - hi_d)
         b = np.searchsorted(ys, cy[k] + hi_d, side="right")
         n = 0
@@ -1618,7 +1620,7 @@ def shared_ring_counts(n_ring, spacing, cx32, cy32, qx, qy, fam, near_dist, row_
     out = n_ring.copy()
     Hw = len(row_start) - 1
     for k in range(len(cx32)):
-        if spacing[k] <= 0.0 or (n_ring[k, 0] >= 2 and n_ring[k, 1] >= 2):
+        if spacing[k] <= 0.0:
             continue
         c0 = 0
         c1 = 0
@@ -1648,8 +1650,7 @@ def shared_ring_counts(n_ring, spacing, cx32, cy32, qx, qy, fam, near_dist, row_
 @njit
 def shared_arm_fits(fits, core, row_start, u, fam, qx, qy, nx, ny, sx, sy, R32):
     """Refit, in place, the arms that have fewer than 3 samples (`junction_fits`' outputs `fits`, rows
-    2·k + family − 1) of the candidates with R32[k] > 0 (float32; 0: leave them) from every sample of that
-    family within R32[k] of candidate k outside the
+    2·k + family − 1) from every sample of that family within R32[k] (float32, per candidate) of candidate k outside the
     crossings' cores (`core`), whichever segment holds it or none: where the other family's lines are a few px
     apart, a line's pieces between two crossings hold one or two samples, too few to be segments or shared by
     both crossings (decision 0120). Samples in scan order (`row_start`). A row is replaced only where the new
@@ -1661,7 +1662,7 @@ def shared_arm_fits(fits, core, row_start, u, fam, qx, qy, nx, ny, sx, sy, R32):
     want = np.zeros(G, np.bool_)
     cap = 0
     for g in range(G):
-        if cnt[g] < 3 and R32[g // 2] > 0:
+        if cnt[g] < 3:
             want[g] = True
             c = g // 2
             rr = int(math.ceil(R32[c])) + 1

@@ -455,7 +455,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
             stats["debug_ring_own"] = n_ring
         if options.shared_arms and scale == 1:  # crossings a few px apart share their ring samples (0120)
             s32 = np.asarray(seeds, np.float32).reshape(-1, 2)
-            spacing_raw = _k.compressed_spacing(seeds[:, 0].copy(), seeds[:, 1].copy(), r0, r_att)
+            spacing_raw = _k.compressed_spacing(n_ring, seeds[:, 0].copy(), seeds[:, 1].copy(), r0, r_att)
             n_ring = _k.shared_ring_counts(n_ring, spacing_raw, s32[:, 0].copy(), s32[:, 1].copy(), qx32, qy32, fam, dist,
                                            row_start, u, np.float32(r0), np.float32(r_att))
         if options.debug:
@@ -523,7 +523,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         if options.shared_arms and scale == 1:  # arms of one or two samples: the samples around it (0120)
             stats["junctions_shared_arms"] = _k.shared_arm_fits(
                 (cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin), core, row_start, u, fam,
-                qx32, qy32, nx32, ny32, seeds_x, seeds_y, np.where(spacing > 0, np.maximum(R, 1.5 * spacing), 0.0).astype(np.float32))
+                qx32, qy32, nx32, ny32, seeds_x, seeds_y, np.maximum(R, 1.5 * spacing).astype(np.float32))
         # in one kernel (decision 0079), in this order, each reason counting the candidates still valid:
         # a line that jumps sideways at the crossing (a depth edge: two surfaces' lines meeting) is no
         # crossing: compare the mean signed offsets from the fit on both sides; and with few samples the
