@@ -91,9 +91,11 @@ class ExtractOptions:
     downsample_sigma_px: smoothing scales at or above this are computed on a half-resolution image
         (wide lines; the samples are still about two camera pixels apart).
     shared_arms: where crossings along a line are only a few px apart (the other family's lines compressed by
-        a surface seen obliquely), a candidate short of ring samples is counted again with the samples shared
-        with its neighbours, and an arm with fewer than 3 samples is fitted again on the whole segments
-        attached to the candidate, not only its half of each (decision 0120). Full-resolution path only.
+        a surface seen obliquely), a candidate short of ring samples that sits in a row of such crossings (two
+        opposite neighbours at one spacing) is counted again with the ring samples it shares with them, and an
+        arm with fewer than 3 samples is fitted again from every sample of its family near the candidate outside
+        the crossings' cores (decision 0120). Full-resolution path only. Off by default until the label-stage
+        tests whose scenario floors it changes are re-measured (decision 0120, "Tests").
     corner_junctions: a candidate rejected only because one family ends at it (a T, straight arms) is kept as
         a junction (`corner_junctions.py`; stats["junction_corner"] says which). Off: measured not to pay
         (decision 0102). corner_dark: with it, only T's whose stem's missing side is dark (no lit lines there).
@@ -115,7 +117,7 @@ class ExtractOptions:
     arm_short_share: float = 0.5
     corner_junctions: bool = False
     corner_dark: bool = True
-    shared_arms: bool = True
+    shared_arms: bool = False
     debug: bool = False
 
 
