@@ -986,6 +986,14 @@ def junction_fits(arm_of, fam, qx, qy, nx, ny, sx, sy, ns):
         NX[na] = np.float64(nx[i])
         NY[na] = np.float64(ny[i])
         na += a >= 0
+    return _fits_of_groups(grp, X, Y, NX, NY, na, G, sx, sy)
+
+
+@njit
+def _fits_of_groups(grp, X, Y, NX, NY, na, G, sx, sy):
+    """`junction_fits` on collected arm samples: points (X, Y), own normals (NX, NY) float64 of group grp[k]
+    (row 2·candidate + family − 1), k < na (overwritten: the inliers are compacted in place); candidates at
+    (sx, sy). Same outputs as `junction_fits`."""
     cen, dr, rms, cnt = line_fit_xy(grp, X, Y, na, G)
     m = 0  # inliers, compacted in place (order kept)
     for k in range(na):
@@ -1522,3 +1530,193 @@ def samples_f64(qx32, qy32, strength):
         q[i, 1] = qy32[i]
         st[i] = strength[i]
     return q, st
+
+
+@njit
+def _row_span(row_start, u, r, u_lo, u_hi):
+    """The samples of working row r (scan order: u rising within a row) with u_lo ≤ u ≤ u_hi: [a, b)."""
+    lo = row_start[r]
+    hi = row_start[r + 1]
+    a = lo
+    b = hi
+    while a < b:
+        mid = (a + b) >> 1
+        if u[mid] < u_lo:
+            a = mid + 1
+        else:
+            b = mid
+    first = a
+    b = hi
+    while a < b:
+        mid = (a + b) >> 1
+        if u[mid] <= u_hi:
+            a = mid + 1
+        else:
+            b = mid
+    return first, a
+
+
+@njit
+def compressed_spacing(n_ring, cx, cy, r0, r_att):
+    """For the candidates short of ring samples (`ring_counts`: < 2 of a family): the spacing (px) of the row
+    of crossings they sit in, 0 where they sit in none (decision 0120). A crossing whose neighbours along one
+    line are only a few px away (the other family's lines compressed by an oblique surface) has two
+    neighbouring candidates on opposite sides (directions within ~20° of opposite) at nearly the same distance
+    d (within 25 %), with 2·r0 < d ≤ min(2·r_att, 2·r0 + 4) (cores apart; the Voronoi boundary d/2 inside the
+    ring and within 2 px of the core, where samples 1 px apart along the line leave fewer than 2 there), and no
+    candidate closer than 2·r0 (a second candidate on the same crossing). (ns,) float64; cx, cy float64."""
+    ns = len(cx)
+    out = np.zeros(ns)
+    order = np.argsort(cy)
+    ys = cy[order]
+    lo_d = 2.0 * r0
+    hi_d = min(2.0 * r_att, 2.0 * r0 + 4.0)
+    for k in range(ns):
+        if n_ring[k, 0] >= 2 and n_ring[k, 1] >= 2:
+            continue
+        a = np.searchsorted(ys, cy[k] - hi_d)
+        b = np.searchsorted(ys, cy[k] + hi_d, side="right")
+        n = 0
+        dup = False
+        nbx = np.empty(b - a)
+        nby = np.empty(b - a)
+        nbd = np.empty(b - a)
+        for t in range(a, b):
+            m = order[t]
+            if m == k:
+                continue
+            dx = cx[m] - cx[k]
+            dy = cy[m] - cy[k]
+            d = math.sqrt(dx * dx + dy * dy)
+            if d <= lo_d:
+                dup = True
+                break
+            if d <= hi_d:
+                nbx[n] = dx / d
+                nby[n] = dy / d
+                nbd[n] = d
+                n += 1
+        if dup:
+            continue
+        best = 0.0
+        for p in range(n):
+            for q in range(p + 1, n):
+                if nbx[p] * nbx[q] + nby[p] * nby[q] < -0.94 and abs(nbd[p] - nbd[q]) <= 0.25 * max(nbd[p], nbd[q]):
+                    d = 0.5 * (nbd[p] + nbd[q])
+                    if best == 0.0 or d < best:
+                        best = d
+        out[k] = best
+    return out
+
+
+@njit
+def shared_ring_counts(n_ring, spacing, cx32, cy32, qx, qy, fam, near_dist, row_start, u, r0, r_att):
+    """Ring counts for candidates in a row of compressed crossings (`compressed_spacing` > 0; decision 0120):
+    (ns, 2) int64, `n_ring` elsewhere; there the samples of each family at a distance in (r0, r_att] (float32)
+    of candidate (cx32, cy32) whatever candidate is nearest to them, except samples within r0 of their nearest
+    candidate (`near_dist`: another crossing's core). Samples are in scan order (`row_start`: the first sample
+    of each working row). Where crossings along a line are only a few px apart, the Voronoi cells of
+    `ring_counts` hold at most one sample per side of that line, shared with the neighbour."""
+    out = n_ring.copy()
+    Hw = len(row_start) - 1
+    for k in range(len(cx32)):
+        if spacing[k] <= 0.0:
+            continue
+        c0 = 0
+        c1 = 0
+        ra = np.float32(r_att)
+        lo_r = max(int(math.floor(cy32[k] - ra)) - 1, 0)
+        hi_r = min(int(math.ceil(cy32[k] + ra)) + 1, Hw - 1)
+        u_lo = int(math.floor(cx32[k] - ra)) - 1
+        u_hi = int(math.ceil(cx32[k] + ra)) + 1
+        for r in range(lo_r, hi_r + 1):
+            a, b = _row_span(row_start, u, r, u_lo, u_hi)
+            for i in range(a, b):
+                if near_dist[i] <= r0:
+                    continue
+                dx = qx[i] - cx32[k]
+                dy = qy[i] - cy32[k]
+                d = np.float32(math.sqrt(dx * dx + dy * dy))
+                if d > r0 and d <= ra:
+                    if fam[i] == 1:
+                        c0 += 1
+                    else:
+                        c1 += 1
+        out[k, 0] = c0
+        out[k, 1] = c1
+    return out
+
+
+@njit
+def shared_arm_fits(fits, core, row_start, u, fam, qx, qy, nx, ny, sx, sy, R32):
+    """Refit, in place, the arms that have fewer than 3 samples (`junction_fits`' outputs `fits`, rows
+    2·k + family − 1) from every sample of that family within R32[k] (float32, per candidate) of candidate k outside the
+    crossings' cores (`core`), whichever segment holds it or none: where the other family's lines are a few px
+    apart, a line's pieces between two crossings hold one or two samples, too few to be segments or shared by
+    both crossings (decision 0120). Samples in scan order (`row_start`). A row is replaced only where the new
+    arm has more samples. Returns the number of candidates with a row replaced."""
+    cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin = fits
+    G = len(cnt)
+    ns = G // 2
+    Hw = len(row_start) - 1
+    want = np.zeros(G, np.bool_)
+    cap = 0
+    for g in range(G):
+        if cnt[g] < 3:
+            want[g] = True
+            c = g // 2
+            rr = int(math.ceil(R32[c])) + 1
+            cy = int(sy[c])
+            cx = int(sx[c])
+            for r in range(max(cy - rr, 0), min(cy + rr, Hw - 1) + 1):
+                a, b = _row_span(row_start, u, r, cx - rr, cx + rr)
+                cap += b - a
+    if cap == 0:
+        return 0
+    grp = np.empty(cap, np.int64)
+    X = np.empty(cap)
+    Y = np.empty(cap)
+    NX = np.empty(cap)
+    NY = np.empty(cap)
+    na = 0
+    for g in range(G):
+        if not want[g]:
+            continue
+        c = g // 2
+        f = g - 2 * c + 1
+        cx32 = np.float32(sx[c])
+        cy32 = np.float32(sy[c])
+        cy = int(sy[c])
+        cx = int(sx[c])
+        rr = int(math.ceil(R32[c])) + 1
+        for r in range(max(cy - rr, 0), min(cy + rr, Hw - 1) + 1):
+            a, b = _row_span(row_start, u, r, cx - rr, cx + rr)
+            for t in range(a, b):
+                if fam[t] != f or core[t]:
+                    continue
+                dx = qx[t] - cx32
+                dy = qy[t] - cy32
+                if np.float32(math.sqrt(dx * dx + dy * dy)) <= R32[c]:
+                    grp[na] = g
+                    X[na] = np.float64(qx[t])
+                    Y[na] = np.float64(qy[t])
+                    NX[na] = np.float64(nx[t])
+                    NY[na] = np.float64(ny[t])
+                    na += 1
+    c2, d2, r2, n2, neg2, pos2, mn2, mp2, ms2 = _fits_of_groups(grp, X, Y, NX, NY, na, G, sx, sy)
+    done = np.zeros(ns, np.bool_)
+    for g in range(G):
+        if want[g] and n2[g] > cnt[g]:
+            cen[g, 0] = c2[g, 0]
+            cen[g, 1] = c2[g, 1]
+            dr[g, 0] = d2[g, 0]
+            dr[g, 1] = d2[g, 1]
+            rms[g] = r2[g]
+            cnt[g] = n2[g]
+            n_neg[g] = neg2[g]
+            n_pos[g] = pos2[g]
+            m_neg[g] = mn2[g]
+            m_pos[g] = mp2[g]
+            mean_sin[g] = ms2[g]
+            done[g // 2] = True
+    return int(done.sum())

@@ -90,6 +90,12 @@ class ExtractOptions:
         trimmed too; kept on the same terms (decision 0077, round 4b); 0: off.
     downsample_sigma_px: smoothing scales at or above this are computed on a half-resolution image
         (wide lines; the samples are still about two camera pixels apart).
+    shared_arms: where crossings along a line are only a few px apart (the other family's lines compressed by
+        a surface seen obliquely), a candidate short of ring samples that sits in a row of such crossings (two
+        opposite neighbours at one spacing) is counted again with the ring samples it shares with them, and an
+        arm with fewer than 3 samples is fitted again from every sample of its family near the candidate outside
+        the crossings' cores (decision 0120). Full-resolution path only. Off by default until the label-stage
+        tests whose scenario floors it changes are re-measured (decision 0120, "Tests").
     corner_junctions: a candidate rejected only because one family ends at it (a T, straight arms) is kept as
         a junction (`corner_junctions.py`; stats["junction_corner"] says which). Off: measured not to pay
         (decision 0102). corner_dark: with it, only T's whose stem's missing side is dark (no lit lines there).
@@ -111,6 +117,7 @@ class ExtractOptions:
     arm_short_share: float = 0.5
     corner_junctions: bool = False
     corner_dark: bool = True
+    shared_arms: bool = False
     debug: bool = False
 
 
@@ -398,6 +405,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     stats["samples"] = int(P)
     t3 = time.perf_counter()
     ms["families"] = 1e3 * (t3 - t2)
+    row_start = _k.row_starts(v, Hw)  # the samples of each working row (they are in scan order)
 
     # --- 4a. crossing candidates: local maxima of the weaker curvature ------------------------------------
     step = model.junction_step_cam_px / scale  # predicted junction spacing along a line, working px
@@ -441,9 +449,17 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     if options.debug:
         stats["debug_raw_candidates"] = seeds * scale
     # samples near each candidate; a candidate is a crossing only where both families come close
+    spacing = np.zeros(len(seeds))  # per kept candidate: the spacing of its row of compressed crossings, 0: none
     if len(seeds) and P:
         near, dist = look_dist(seed_grid, qx32, qy32, seeds, r_att)
         n_ring = _k.ring_counts(near, dist, fam, np.float32(r0), len(seeds))
+        if options.debug:
+            stats["debug_ring_own"] = n_ring
+        if options.shared_arms and scale == 1:  # crossings a few px apart share their ring samples (0120)
+            s32 = np.asarray(seeds, np.float32).reshape(-1, 2)
+            spacing_raw = _k.compressed_spacing(n_ring, seeds[:, 0].copy(), seeds[:, 1].copy(), r0, r_att)
+            n_ring = _k.shared_ring_counts(n_ring, spacing_raw, s32[:, 0].copy(), s32[:, 1].copy(), qx32, qy32, fam, dist,
+                                           row_start, u, np.float32(r0), np.float32(r_att))
         if options.debug:
             stats["debug_ring"] = n_ring
         # the kept candidates (≥ 2 ring samples of each family), renumbered, and their coordinates as the
@@ -451,6 +467,9 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         remap_seed, seeds, seed_score, seeds_x, seeds_y, seeds_x32, seeds_y32, n_few = _k.keep_crossings(n_ring, seeds, seed_score)
         reasons["too_few_samples"] = int(n_few)
         core = _k.crossing_cores(near, dist, remap_seed, np.float32(r0))  # samples within r0 of a kept one
+        if options.shared_arms and scale == 1:
+            spacing = np.zeros(len(seeds))
+            spacing[remap_seed[remap_seed >= 0]] = spacing_raw[remap_seed >= 0]
     else:
         remap_seed = np.arange(len(seeds))
         core = np.zeros(P, bool)
@@ -476,7 +495,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         # remember where, the ridge of that line is biased there
         seg_seed, t_ids = _k.end_walks(
             sidx, sg, sproj, smin, smax, qx32, qy32, nx32, ny32, fam, seg_family, seg_dir, probes, Hw, Ww,
-            seed_grid, remap_seed, inv_cs, _PAD, seeds_x, seeds_y, seeds_x32, seeds_y32, np.float32(r_side), r_att + r_side, _k.row_starts(v, Hw), u, core,
+            seed_grid, remap_seed, inv_cs, _PAD, seeds_x, seeds_y, seeds_x32, seeds_y32, np.float32(r_side), r_att + r_side, row_start, u, core,
         )  # fmt: skip
         t_points = q[t_ids]
     else:
@@ -503,6 +522,10 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
                 options.free_end_trim_sigma * s_w, (fam, qx32, qy32, nx32, ny32), (seeds_x, seeds_y),
                 rms_tol=options.max_segment_rms_px / scale, sin_tol=float(np.sin(np.deg2rad(options.max_arm_turn_deg))),
                 r_short=max(options.arm_short_share * R, r_att + 1.0) if options.arm_short_share > 0 else 0.0)
+        if options.shared_arms and scale == 1:  # arms of one or two samples: the samples around it (0120)
+            stats["junctions_shared_arms"] = _k.shared_arm_fits(
+                (cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin), core, row_start, u, fam,
+                qx32, qy32, nx32, ny32, seeds_x, seeds_y, np.maximum(R, 1.5 * spacing).astype(np.float32))
         # in one kernel (decision 0079), in this order, each reason counting the candidates still valid:
         # a line that jumps sideways at the crossing (a depth edge: two surfaces' lines meeting) is no
         # crossing: compare the mean signed offsets from the fit on both sides; and with few samples the
