@@ -117,7 +117,7 @@ class ExtractOptions:
     arm_short_share: float = 0.5
     corner_junctions: bool = False
     corner_dark: bool = True
-    shared_arms: bool = False
+    shared_arms: bool = True
     debug: bool = False
 
 

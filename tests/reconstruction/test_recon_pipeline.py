@@ -242,6 +242,7 @@ def test_frame_stats_count_the_limb_step(small_scene_pitch16):
     base = ReconstructOptions(depth_min_mm=s.depth_range_mm[0], depth_max_mm=s.depth_range_mm[1])
     on = reconstruct(s.image, s.procam, s.pattern, options=base)
     off = reconstruct(s.image, s.procam, s.pattern, options=replace(base, trace=replace(TraceOptions(), beside_lines=False)))
-    assert on.stats["samples_beside_lines"] >= 150, on.stats["samples_beside_lines"]
+    # measured: 147 (decision 0120's shared arms find some of the band's junctions: fewer left for the step)
+    assert on.stats["samples_beside_lines"] >= 100, on.stats["samples_beside_lines"]
     assert off.stats["samples_beside_lines"] == 0
     assert on.n_points > off.n_points
