@@ -85,6 +85,9 @@ class LabelOptions:
     min_rms_ratio: float = 1.5
     neighbour_noise: bool = True
     frame_retry_limit: bool = True
+    skip_edges: bool = True
+    skip_max_steps: int = 6
+    skip_tol_sigma: float = 4.0
     candidate_band_px: float = 4.0
     candidate_refs: int = 5
     outlier_sigma: float = 6.0
@@ -102,6 +105,8 @@ class LabelOptions:
         for name in ("noise_floor_px", "residual_cap_px", "candidate_band_px", "max_residual_px", "cluster_factor", "cluster_floor_px"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"LabelOptions.{name} = {getattr(self, name)}: must be > 0")
+        if not self.skip_max_steps >= 2 or not self.skip_tol_sigma > 0:
+            raise ValueError(f"LabelOptions: skip_max_steps ({self.skip_max_steps}) must be >= 2 and skip_tol_sigma ({self.skip_tol_sigma}) > 0")
         if not self.cluster_min >= 1:
             raise ValueError(f"LabelOptions.cluster_min = {self.cluster_min}: must be >= 1")
         if not self.depth_max_mm > self.depth_min_mm:
@@ -208,6 +213,7 @@ class _Choice:
     inside: np.ndarray | None = None  # (m,) bool, inside the depth range
     rms: tuple[float, float] = (float("nan"), float("nan"))  # best, runner-up
     limit: float | None = None  # the outlier limit, when the inlier retry decided (decision 0123)
+    offset: np.ndarray | None = None  # (2,) the best offset, when ambiguous (decision 0125)
 
 
 def _choose_offset(
@@ -295,11 +301,11 @@ def _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_
         lim = min(_outlier_limit(r_full, options) if limit is None else limit, retry_limit_px)
         inl = np.isfinite(r_full) & (r_full <= lim)
         if not _inlier_retry or inl.all() or inl.sum() < options.min_split_component:
-            return _Choice("ambiguous", rms=rms)
+            return _Choice("ambiguous", rms=rms, offset=np.asarray(off_best))
         sub = _choose_offset(model, rel[inl], ln[inl], xy_cam[inl], options, stats, _inlier_retry=False,
                              members=None if members is None else members[inl], graph=graph)
         if sub.reason is not None or not np.array_equal(sub.labels[0] - rel[inl][0], lab[0] - rel[0]):
-            return _Choice("ambiguous", rms=rms)
+            return _Choice("ambiguous", rms=rms, offset=np.asarray(off_best))
         return _Choice(None, lab, r_full, inside, rms, limit=lim)  # the inliers' limit: the same unless tightened
     return _Choice(None, lab, r_full, inside, rms)
 
@@ -311,6 +317,21 @@ def _frame_retry_limit(residual: np.ndarray, options: LabelOptions, *, min_junct
     if not options.frame_retry_limit or int(np.isfinite(residual).sum()) < min_junctions:
         return math.inf
     return _outlier_limit(residual, options)
+
+
+def _edge_jump_tol(model: RigModel, lines: np.ndarray, labels: np.ndarray, comp: np.ndarray, a: np.ndarray, b: np.ndarray,
+                   options: LabelOptions, *, min_edges: int = 20) -> float:
+    """Decision 0125: skip_tol_sigma·σ̂_Δ, σ̂_Δ = 1.4826·median |r_b − r_a| over the edges a → b (a, b (E,) junction ids)
+    whose ends are labelled in one component (labels (M, 2), comp (M,)), r the signed epipolar residual of the label
+    (projector px; lines (M, 3)). inf with fewer than min_edges such edges (the re-step is off)."""
+    ok = (labels[a, 0] != UNLABELLED) & (labels[b, 0] != UNLABELLED) & (comp[a] == comp[b])
+    a, b = a[ok], b[ok]
+    if len(a) < min_edges:
+        return math.inf
+    def signed(ids):
+        xy = model.xy_junction[labels[ids, 0] - model.index_min, labels[ids, 1] - model.index_min]
+        return (lines[ids, 0] * xy[:, 0] + lines[ids, 1] * xy[:, 1] + lines[ids, 2]) * model.fx_proj
+    return options.skip_tol_sigma * 1.4826 * float(np.median(np.abs(signed(b) - signed(a))))
 
 
 def _outlier_limit(r: np.ndarray, options: LabelOptions) -> float:
@@ -343,7 +364,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     # `clean_edges` then `_propagate` on the kept edges, with the edge arrays made once: the walk takes the kept
     # edges in their order (`propagate`'s keep), as it took the filtered copy (decision 0096)
     edges_all = np.asarray(obs.edges, np.int64).reshape(-1, 2)
-    delta_all = np.asarray(obs.edge_delta, np.int64).reshape(-1, 2)
+    delta_all = obs_delta = np.asarray(obs.edge_delta, np.int64).reshape(-1, 2)
     e_arrays = _edge_arrays(edges_all, delta_all)
     keep, removed = _k.clean_edges(int(M), *e_arrays, 2)
     stats["contradicting_edges"] = int(removed)
@@ -391,10 +412,48 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
 
         clusters = _clusters
 
-    # Work list: (members, split round, first-round group or −1). Pieces split off are relabelled on their own.
-    work = [(order[bounds[g] : bounds[g + 1]], 0, g) for g in range(len(bounds) - 1)]
+    # Edges that skip crossings (decision 0125): the tolerance of the residual jump across an edge, from the kept
+    # edges of the components the first round wrote; only when a component may come out ambiguous.
+    skip_tol = math.inf
+    if options.skip_edges and bool((g_ok.astype(np.bool_) & ~g_written.astype(np.bool_)).any()):
+        skip_tol = _edge_jump_tol(model, lines, labels, comp, e_arrays[0][keep], e_arrays[1][keep], options)
+    stats["edges_restepped"] = 0
+
+    def _restep(members, off):
+        """Decision 0125: give the component's edges the steps the epipolar geometry names under offset off; the
+        re-propagated pieces, or None when no edge changes."""
+        nonlocal delta_all, edges
+        pos_m = np.full(M, -1, np.intp)
+        pos_m[members] = np.arange(len(members))
+        sel = np.flatnonzero(keep & (pos_m[edges_all[:, 0]] >= 0) & (pos_m[edges_all[:, 1]] >= 0))
+        if len(sel) == 0:
+            return None
+        sub_e = pos_m[edges_all[sel]]
+        k = _ak.edge_steps(np.ascontiguousarray(sub_e[:, 0]), np.ascontiguousarray(sub_e[:, 1]),
+                           np.ascontiguousarray(delta_all[sel, 0]), np.ascontiguousarray(delta_all[sel, 1]),
+                           np.ascontiguousarray(rel[members] + np.asarray(off, np.int64)), np.ascontiguousarray(lines[members]),
+                           model.xy_junction, int(model.index_min), int(model.index_max), float(model.fx_proj),
+                           int(options.skip_max_steps), float(skip_tol))
+        changed = k != 1
+        if not changed.any():
+            return None
+        if delta_all is obs_delta:
+            delta_all = delta_all.copy()
+        delta_all[sel[changed]] *= k[changed, None]
+        edges = None  # the split's kept edges are made again with the new steps
+        stats["edges_restepped"] += int(changed.sum())
+        sub_arrays = _edge_arrays(sub_e, delta_all[sel])
+        keep_s, _ = _k.clean_edges(len(members), *sub_arrays, 2)
+        keep[sel[~keep_s]] = False
+        sub_rel, sub_comp = _k.propagate(len(members), *sub_arrays, keep_s)
+        rel[members] = sub_rel
+        return [members[p] for p in _groups(sub_comp)]
+
+    # Work list: (members, split round, first-round group or −1, edges may be re-stepped). Pieces split off are
+    # relabelled on their own.
+    work = [(order[bounds[g] : bounds[g + 1]], 0, g, True) for g in range(len(bounds) - 1)]
     while work:
-        members, rounds, g = work.pop()
+        members, rounds, g, may_restep = work.pop()
         m = len(members)
         if rounds == 0 and m < options.min_component:
             left["component_too_small"] += m
@@ -427,6 +486,16 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             ch = _choose_offset(model, rel[members], lines[members], xy_cam[members], options, stats, members=members, graph=graph,
                                 retry_limit_px=retry_limit)
         if not (g >= 0 and g_written[g]):
+            if ch.reason == "ambiguous" and may_restep and ch.offset is not None and math.isfinite(skip_tol):
+                pieces = _restep(members, ch.offset)
+                if pieces is not None:
+                    # labelled again with the new steps (once): pieces the re-propagation separates on their own
+                    stats["components_restepped"] = stats.get("components_restepped", 0) + 1
+                    for p in pieces:
+                        component[p] = next_id
+                        next_id += 1
+                        work.append((p, rounds, -1, False))
+                    continue
             if ch.reason is not None:
                 left[ch.reason] += m
                 if ch.reason == "ambiguous":
@@ -466,7 +535,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         for g in _groups(sub_comp):
             component[outl[g]] = next_id
             next_id += 1
-            work.append((outl[g], rounds + 1, -1))
+            work.append((outl[g], rounds + 1, -1, True))
     stats["junctions_left_out"] = left
     return Labels(labels, residual, component, stats)
 
