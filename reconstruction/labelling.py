@@ -213,17 +213,17 @@ class _Choice:
     inside: np.ndarray | None = None  # (m,) bool, inside the depth range
     rms: tuple[float, float] = (float("nan"), float("nan"))  # best, runner-up
     limit: float | None = None  # the outlier limit, when the inlier retry decided (decision 0123)
-    offset: np.ndarray | None = None  # (2,) the best offset, when ambiguous (decision 0125)
 
 
 def _choose_offset(
     model: RigModel, rel: np.ndarray, ln: np.ndarray, xy_cam: np.ndarray, options: LabelOptions, stats: dict, *, _inlier_retry: bool = True,
-    members: np.ndarray | None = None, graph: _Graph | None = None, retry_limit_px: float = math.inf,
+    members: np.ndarray | None = None, graph: _Graph | None = None, retry_limit_px: float = math.inf, restep=None,
 ) -> _Choice:
     """Score every admissible integer offset of one component (relative labels rel (m, 2), epipolar lines
     ln (m, 3), normalised camera points xy_cam (m, 2)) and apply the range and ambiguity tests. members (m,) the
     component's junction ids and graph `_Graph` (the kept edges), both or neither: for the noise split of
-    decision 0122 (`_choice_of`); retry_limit_px: the inlier retry's limit at most this (decision 0123)."""
+    decision 0122 (`_choice_of`); retry_limit_px: the inlier retry's limit at most this (decision 0123); restep: see
+    `_choice_of`."""
     rel = np.ascontiguousarray(rel, np.int64)
     ln = np.ascontiguousarray(ln, np.float64)
     xy_cam = np.ascontiguousarray(xy_cam, np.float64)
@@ -239,7 +239,7 @@ def _choose_offset(
         int(options.candidate_refs), float(options.candidate_band_px), float(options.min_inside_fraction), float(cap2),
         model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm))
     return _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside,
-                      members=members, graph=graph, retry_limit_px=retry_limit_px)
+                      members=members, graph=graph, retry_limit_px=retry_limit_px, restep=restep)
 
 
 class _Graph:
@@ -277,9 +277,11 @@ def _shared_error_test(model, rel, ln, off_best, s1, s2, n_eff, options, members
 
 
 def _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside,
-               limit=None, members=None, graph=None, retry_limit_px=math.inf) -> _Choice:
+               limit=None, members=None, graph=None, retry_limit_px=math.inf, restep=None) -> _Choice:
     """`_choose_offset`'s tests on `offset_choice`'s results (limit: `_outlier_limit(r_full)` when known; members,
-    graph, retry_limit_px: see `_choose_offset`)."""
+    graph, retry_limit_px: see `_choose_offset`). restep: called with the best offset (2,) when the component fails
+    the ambiguity test, before the inlier retry; True means its edges changed (decision 0125): the outcome is then
+    "restepped" and the caller labels it again."""
     if status != 0:
         if status >= 2:
             stats["out_of_pattern"] += 1
@@ -297,15 +299,18 @@ def _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_
         stats["ambiguity_noise_split"] = stats.get("ambiguity_noise_split", 0) + 1
     elif n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2 or s2 < options.min_rms_ratio**2 * sigma2:
         # A component that mixes two surfaces (a bad edge) looks ambiguous as a whole: each offset fits one
-        # part. Judge the best offset on its own inliers; if it wins there, the rest is split off later.
+        # part. Judge the best offset on its own inliers; if it wins there, the rest is split off later. First, edges
+        # that skip missed crossings take the steps the epipolar geometry names under the best offset (decision 0125).
+        if restep is not None and restep(np.asarray(off_best)):
+            return _Choice("restepped")
         lim = min(_outlier_limit(r_full, options) if limit is None else limit, retry_limit_px)
         inl = np.isfinite(r_full) & (r_full <= lim)
         if not _inlier_retry or inl.all() or inl.sum() < options.min_split_component:
-            return _Choice("ambiguous", rms=rms, offset=np.asarray(off_best))
+            return _Choice("ambiguous", rms=rms)
         sub = _choose_offset(model, rel[inl], ln[inl], xy_cam[inl], options, stats, _inlier_retry=False,
                              members=None if members is None else members[inl], graph=graph)
         if sub.reason is not None or not np.array_equal(sub.labels[0] - rel[inl][0], lab[0] - rel[0]):
-            return _Choice("ambiguous", rms=rms, offset=np.asarray(off_best))
+            return _Choice("ambiguous", rms=rms)
         return _Choice(None, lab, r_full, inside, rms, limit=lim)  # the inliers' limit: the same unless tightened
     return _Choice(None, lab, r_full, inside, rms)
 
@@ -463,6 +468,14 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             left["split_too_small"] += m
             continue
         limit = None
+        pieces_box: list = []
+        restep = None
+        if may_restep and math.isfinite(skip_tol):
+            def restep(off, members=members, pieces_box=pieces_box):
+                pieces = _restep(members, off)
+                if pieces is not None:
+                    pieces_box.append(pieces)
+                return pieces is not None
         if g >= 0 and g_written[g]:
             # accepted and written in the compiled call (`_choice_of`'s path without the retry)
             stats["out_of_depth_range"] += int(g_fail[g])
@@ -480,22 +493,20 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             ch = _choice_of(model, rel[members] if ok_g else None, lines[members] if ok_g else None, xy_cam[members] if ok_g else None,
                             options, stats, True, int(g_status[g]), g_fail[g], ok_g, g_s1[g], g_s2[g], int(g_neff[g]),
                             g_off[g], g_r[b0:b1] if ok_g else None, g_in[b0:b1] if ok_g else None, g_limit[g], members=members, graph=graph,
-                            retry_limit_px=retry_limit)
+                            retry_limit_px=retry_limit, restep=restep)
             limit = float(g_limit[g])
         else:
             ch = _choose_offset(model, rel[members], lines[members], xy_cam[members], options, stats, members=members, graph=graph,
-                                retry_limit_px=retry_limit)
+                                retry_limit_px=retry_limit, restep=restep)
         if not (g >= 0 and g_written[g]):
-            if ch.reason == "ambiguous" and may_restep and ch.offset is not None and math.isfinite(skip_tol):
-                pieces = _restep(members, ch.offset)
-                if pieces is not None:
-                    # labelled again with the new steps (once): pieces the re-propagation separates on their own
-                    stats["components_restepped"] = stats.get("components_restepped", 0) + 1
-                    for p in pieces:
-                        component[p] = next_id
-                        next_id += 1
-                        work.append((p, rounds, -1, False))
-                    continue
+            if ch.reason == "restepped":
+                # labelled again with the new steps (once): pieces the re-propagation separates on their own
+                stats["components_restepped"] = stats.get("components_restepped", 0) + 1
+                for p in pieces_box[0]:
+                    component[p] = next_id
+                    next_id += 1
+                    work.append((p, rounds, -1, False))
+                continue
             if ch.reason is not None:
                 left[ch.reason] += m
                 if ch.reason == "ambiguous":
