@@ -351,7 +351,9 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
 
     xy_cam: (M, 2) normalised camera coordinates of obs.q_junction. stats["junctions_left_out"] counts the
     junctions left out by reason (LEFT_OUT_REASONS); stats["components_split"] the components cut at
-    outlier junctions; stats["ambiguity_noise_split"] (when any) the components accepted by decision 0122's test.
+    outlier junctions; stats["ambiguity_noise_split"] (when any) the components accepted by decision 0122's test;
+    stats["edges_restepped"] and stats["components_restepped"] (when any) the edges given another step and the components
+    labelled again for it (decision 0125).
 
     Speed (decisions 0067, 0078, 0087): the graph walk (`clean_edges`, `_propagate`), the components' groups,
     each component's candidate offsets, scores, depth walk and residuals (`offset_choice`: one call) and the
@@ -422,7 +424,6 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     skip_tol = math.inf
     if options.skip_edges and bool((g_ok.astype(np.bool_) & ~g_written.astype(np.bool_)).any()):
         skip_tol = _edge_jump_tol(model, lines, labels, comp, e_arrays[0][keep], e_arrays[1][keep], options)
-    stats["edges_restepped"] = 0
 
     def _restep(members, off):
         """Decision 0125: give the component's edges the steps the epipolar geometry names under offset off; the
@@ -446,7 +447,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             delta_all = delta_all.copy()
         delta_all[sel[changed]] *= k[changed, None]
         edges = None  # the split's kept edges are made again with the new steps
-        stats["edges_restepped"] += int(changed.sum())
+        stats["edges_restepped"] = stats.get("edges_restepped", 0) + int(changed.sum())
         sub_arrays = _edge_arrays(sub_e, delta_all[sel])
         keep_s, _ = _k.clean_edges(len(members), *sub_arrays, 2)
         keep[sel[~keep_s]] = False
