@@ -105,3 +105,32 @@ def edge_steps(pa, pb, d_i, d_j, lab, ln, xy_junction, index_min, index_max, fx,
         if first_ok and n_within == 1:
             out[e] = k_best
     return out
+
+
+@njit
+def edge_jump_median(a, b, keep, comp, labels, ln, xy_junction, index_min, fx, unlabelled):
+    """The median |r_b − r_a| (projector px) over the kept edges a → b (a, b (E,) junction ids, keep (E,) bool) whose
+    ends are both labelled (labels (M, 2), UNLABELLED = unlabelled) in one component (comp (M,)); r the signed epipolar
+    residual of the label (ln (M, 3), xy_junction, fx as `edge_steps`), and the number of such edges (NaN, 0 without
+    one). Decision 0125's noise scale (`labelling._edge_jump_tol`)."""
+    n = a.shape[0]
+    d = np.empty(n)
+    c = 0
+    for e in range(n):
+        if not keep[e]:
+            continue
+        p = a[e]
+        q = b[e]
+        if labels[p, 0] == unlabelled or labels[q, 0] == unlabelled or comp[p] != comp[q]:
+            continue
+        ip = labels[p, 0] - index_min
+        jp = labels[p, 1] - index_min
+        iq = labels[q, 0] - index_min
+        jq = labels[q, 1] - index_min
+        rp = (ln[p, 0] * xy_junction[ip, jp, 0] + ln[p, 1] * xy_junction[ip, jp, 1] + ln[p, 2]) * fx
+        rq = (ln[q, 0] * xy_junction[iq, jq, 0] + ln[q, 1] * xy_junction[iq, jq, 1] + ln[q, 2]) * fx
+        d[c] = abs(rq - rp)
+        c += 1
+    if c == 0:
+        return np.nan, 0
+    return np.median(d[:c]), c

@@ -325,18 +325,16 @@ def _frame_retry_limit(residual: np.ndarray, options: LabelOptions, *, min_junct
 
 
 def _edge_jump_tol(model: RigModel, lines: np.ndarray, labels: np.ndarray, comp: np.ndarray, a: np.ndarray, b: np.ndarray,
-                   options: LabelOptions, *, min_edges: int = 20) -> float:
-    """Decision 0125: skip_tol_sigma·σ̂_Δ, σ̂_Δ = 1.4826·median |r_b − r_a| over the edges a → b (a, b (E,) junction ids)
-    whose ends are labelled in one component (labels (M, 2), comp (M,)), r the signed epipolar residual of the label
-    (projector px; lines (M, 3)). inf with fewer than min_edges such edges (the re-step is off)."""
-    ok = (labels[a, 0] != UNLABELLED) & (labels[b, 0] != UNLABELLED) & (comp[a] == comp[b])
-    a, b = a[ok], b[ok]
-    if len(a) < min_edges:
+                   keep: np.ndarray, options: LabelOptions, *, min_edges: int = 20) -> float:
+    """Decision 0125: skip_tol_sigma·σ̂_Δ, σ̂_Δ = 1.4826·median |r_b − r_a| over the kept edges a → b (a, b (E,) junction
+    ids, keep (E,) bool) whose ends are labelled in one component (labels (M, 2), comp (M,)), r the signed epipolar
+    residual of the label (projector px; lines (M, 3)); compiled (`_ambiguity_kernels.edge_jump_median`). inf with
+    fewer than min_edges such edges (the re-step is off)."""
+    med, n = _ak.edge_jump_median(a, b, keep, np.ascontiguousarray(comp, np.int64), labels, lines, model.xy_junction,
+                                  int(model.index_min), float(model.fx_proj), UNLABELLED)
+    if n < min_edges:
         return math.inf
-    def signed(ids):
-        xy = model.xy_junction[labels[ids, 0] - model.index_min, labels[ids, 1] - model.index_min]
-        return (lines[ids, 0] * xy[:, 0] + lines[ids, 1] * xy[:, 1] + lines[ids, 2]) * model.fx_proj
-    return options.skip_tol_sigma * 1.4826 * float(np.median(np.abs(signed(b) - signed(a))))
+    return options.skip_tol_sigma * 1.4826 * float(med)
 
 
 def _outlier_limit(r: np.ndarray, options: LabelOptions) -> float:
@@ -423,7 +421,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     # edges of the components the first round wrote; only when a component may come out ambiguous.
     skip_tol = math.inf
     if options.skip_edges and bool((g_ok.astype(np.bool_) & ~g_written.astype(np.bool_)).any()):
-        skip_tol = _edge_jump_tol(model, lines, labels, comp, e_arrays[0][keep], e_arrays[1][keep], options)
+        skip_tol = _edge_jump_tol(model, lines, labels, comp, e_arrays[0], e_arrays[1], keep, options)
 
     def _restep(members, off):
         """Decision 0125: give the component's edges the steps the epipolar geometry names under offset off; the
