@@ -63,7 +63,7 @@ def neighbour_noise2(members, rel, off_i, off_j, ln, xy_junction, index_min, ind
 
 @njit
 def edge_steps(pa, pb, d_i, d_j, lab, ln, xy_junction, index_min, index_max, fx, k_max, tol_px):
-    """The step each edge of one component takes by the epipolar geometry (decision 0125, `labelling._restep_edges`).
+    """The step each edge of one component takes by the epipolar geometry (decision 0125, `label_epipolar`'s `_restep`).
 
     pa, pb (E,) intp: the edge ends' positions in the component (a → b); d_i, d_j (E,) the edge's claimed step;
     lab (m, 2) int64 the members' labels under one offset; ln (m, 3) their epipolar lines (normalised projector
