@@ -59,3 +59,78 @@ def neighbour_noise2(members, rel, off_i, off_j, ln, xy_junction, index_min, ind
     if n == 0:
         return np.nan, 0
     return 0.5 * total / n, n
+
+
+@njit
+def edge_steps(pa, pb, d_i, d_j, lab, ln, xy_junction, index_min, index_max, fx, k_max, tol_px):
+    """The step each edge of one component takes by the epipolar geometry (decision 0125, `label_epipolar`'s `_restep`).
+
+    pa, pb (E,) intp: the edge ends' positions in the component (a → b); d_i, d_j (E,) the edge's claimed step;
+    lab (m, 2) int64 the members' labels under one offset; ln (m, 3) their epipolar lines (normalised projector
+    coordinates, (l0, l1) unit); xy_junction (L, L, 2); fx (px). With a's label La, the jump of the signed
+    residual across the edge for the step k·d is Δ_k = (l_b · X(La + k·d) − l_a · X(La))·fx, projector px.
+    Returns k* (E,) int64: the k in 2 … k_max whose |Δ_k| ≤ tol_px when it is the only one such k in 1 … k_max
+    and Δ_1 is finite (both labels inside the pattern) and > tol_px; 1 otherwise (keep the claimed step).
+    """
+    n = pa.shape[0]
+    L = index_max - index_min + 1
+    out = np.ones(n, np.int64)
+    for e in range(n):
+        a = pa[e]
+        b = pb[e]
+        ia = lab[a, 0] - index_min
+        ja = lab[a, 1] - index_min
+        if not (0 <= ia < L and 0 <= ja < L):
+            continue
+        ra = (ln[a, 0] * xy_junction[ia, ja, 0] + ln[a, 1] * xy_junction[ia, ja, 1] + ln[a, 2]) * fx
+        n_within = 0
+        k_best = 1
+        first_ok = False
+        for k in range(1, k_max + 1):
+            ib = ia + k * d_i[e]
+            jb = ja + k * d_j[e]
+            if not (0 <= ib < L and 0 <= jb < L):
+                if k == 1:
+                    break
+                continue
+            rb = (ln[b, 0] * xy_junction[ib, jb, 0] + ln[b, 1] * xy_junction[ib, jb, 1] + ln[b, 2]) * fx
+            dr = abs(rb - ra)
+            if k == 1:
+                if not math.isfinite(dr) or dr <= tol_px:
+                    break
+                first_ok = True
+            elif dr <= tol_px:
+                n_within += 1
+                k_best = k
+        if first_ok and n_within == 1:
+            out[e] = k_best
+    return out
+
+
+@njit
+def edge_jump_median(a, b, keep, comp, labels, ln, xy_junction, index_min, fx, unlabelled):
+    """The median |r_b − r_a| (projector px) over the kept edges a → b (a, b (E,) junction ids, keep (E,) bool) whose
+    ends are both labelled (labels (M, 2), UNLABELLED = unlabelled) in one component (comp (M,)); r the signed epipolar
+    residual of the label (ln (M, 3), xy_junction, fx as `edge_steps`), and the number of such edges (NaN, 0 without
+    one). Decision 0125's noise scale (`labelling._edge_jump_tol`)."""
+    n = a.shape[0]
+    d = np.empty(n)
+    c = 0
+    for e in range(n):
+        if not keep[e]:
+            continue
+        p = a[e]
+        q = b[e]
+        if labels[p, 0] == unlabelled or labels[q, 0] == unlabelled or comp[p] != comp[q]:
+            continue
+        ip = labels[p, 0] - index_min
+        jp = labels[p, 1] - index_min
+        iq = labels[q, 0] - index_min
+        jq = labels[q, 1] - index_min
+        rp = (ln[p, 0] * xy_junction[ip, jp, 0] + ln[p, 1] * xy_junction[ip, jp, 1] + ln[p, 2]) * fx
+        rq = (ln[q, 0] * xy_junction[iq, jq, 0] + ln[q, 1] * xy_junction[iq, jq, 1] + ln[q, 2]) * fx
+        d[c] = abs(rq - rp)
+        c += 1
+    if c == 0:
+        return np.nan, 0
+    return np.median(d[:c]), c

@@ -85,6 +85,9 @@ class LabelOptions:
     min_rms_ratio: float = 1.5
     neighbour_noise: bool = True
     frame_retry_limit: bool = True
+    skip_edges: bool = True
+    skip_max_steps: int = 6
+    skip_tol_sigma: float = 4.0
     candidate_band_px: float = 4.0
     candidate_refs: int = 5
     outlier_sigma: float = 6.0
@@ -102,6 +105,8 @@ class LabelOptions:
         for name in ("noise_floor_px", "residual_cap_px", "candidate_band_px", "max_residual_px", "cluster_factor", "cluster_floor_px"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"LabelOptions.{name} = {getattr(self, name)}: must be > 0")
+        if not self.skip_max_steps >= 2 or not self.skip_tol_sigma > 0:
+            raise ValueError(f"LabelOptions: skip_max_steps ({self.skip_max_steps}) must be >= 2 and skip_tol_sigma ({self.skip_tol_sigma}) > 0")
         if not self.cluster_min >= 1:
             raise ValueError(f"LabelOptions.cluster_min = {self.cluster_min}: must be >= 1")
         if not self.depth_max_mm > self.depth_min_mm:
@@ -212,12 +217,13 @@ class _Choice:
 
 def _choose_offset(
     model: RigModel, rel: np.ndarray, ln: np.ndarray, xy_cam: np.ndarray, options: LabelOptions, stats: dict, *, _inlier_retry: bool = True,
-    members: np.ndarray | None = None, graph: _Graph | None = None, retry_limit_px: float = math.inf,
+    members: np.ndarray | None = None, graph: _Graph | None = None, retry_limit_px: float = math.inf, restep=None,
 ) -> _Choice:
     """Score every admissible integer offset of one component (relative labels rel (m, 2), epipolar lines
     ln (m, 3), normalised camera points xy_cam (m, 2)) and apply the range and ambiguity tests. members (m,) the
     component's junction ids and graph `_Graph` (the kept edges), both or neither: for the noise split of
-    decision 0122 (`_choice_of`); retry_limit_px: the inlier retry's limit at most this (decision 0123)."""
+    decision 0122 (`_choice_of`); retry_limit_px: the inlier retry's limit at most this (decision 0123); restep: see
+    `_choice_of`."""
     rel = np.ascontiguousarray(rel, np.int64)
     ln = np.ascontiguousarray(ln, np.float64)
     xy_cam = np.ascontiguousarray(xy_cam, np.float64)
@@ -233,7 +239,7 @@ def _choose_offset(
         int(options.candidate_refs), float(options.candidate_band_px), float(options.min_inside_fraction), float(cap2),
         model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm))
     return _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside,
-                      members=members, graph=graph, retry_limit_px=retry_limit_px)
+                      members=members, graph=graph, retry_limit_px=retry_limit_px, restep=restep)
 
 
 class _Graph:
@@ -271,9 +277,11 @@ def _shared_error_test(model, rel, ln, off_best, s1, s2, n_eff, options, members
 
 
 def _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside,
-               limit=None, members=None, graph=None, retry_limit_px=math.inf) -> _Choice:
+               limit=None, members=None, graph=None, retry_limit_px=math.inf, restep=None) -> _Choice:
     """`_choose_offset`'s tests on `offset_choice`'s results (limit: `_outlier_limit(r_full)` when known; members,
-    graph, retry_limit_px: see `_choose_offset`)."""
+    graph, retry_limit_px: see `_choose_offset`). restep: called with the best offset (2,) when the component fails
+    the ambiguity test, before the inlier retry; True means its edges changed (decision 0125): the outcome is then
+    "restepped" and the caller labels it again."""
     if status != 0:
         if status >= 2:
             stats["out_of_pattern"] += 1
@@ -291,7 +299,10 @@ def _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_
         stats["ambiguity_noise_split"] = stats.get("ambiguity_noise_split", 0) + 1
     elif n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2 or s2 < options.min_rms_ratio**2 * sigma2:
         # A component that mixes two surfaces (a bad edge) looks ambiguous as a whole: each offset fits one
-        # part. Judge the best offset on its own inliers; if it wins there, the rest is split off later.
+        # part. Judge the best offset on its own inliers; if it wins there, the rest is split off later. First, edges
+        # that skip missed crossings take the steps the epipolar geometry names under the best offset (decision 0125).
+        if restep is not None and restep(np.asarray(off_best)):
+            return _Choice("restepped")
         lim = min(_outlier_limit(r_full, options) if limit is None else limit, retry_limit_px)
         inl = np.isfinite(r_full) & (r_full <= lim)
         if not _inlier_retry or inl.all() or inl.sum() < options.min_split_component:
@@ -313,6 +324,19 @@ def _frame_retry_limit(residual: np.ndarray, options: LabelOptions, *, min_junct
     return _outlier_limit(residual, options)
 
 
+def _edge_jump_tol(model: RigModel, lines: np.ndarray, labels: np.ndarray, comp: np.ndarray, a: np.ndarray, b: np.ndarray,
+                   keep: np.ndarray, options: LabelOptions, *, min_edges: int = 20) -> float:
+    """Decision 0125: skip_tol_sigma·σ̂_Δ, σ̂_Δ = 1.4826·median |r_b − r_a| over the kept edges a → b (a, b (E,) junction
+    ids, keep (E,) bool) whose ends are labelled in one component (labels (M, 2), comp (M,)), r the signed epipolar
+    residual of the label (projector px; lines (M, 3)); compiled (`_ambiguity_kernels.edge_jump_median`). inf with
+    fewer than min_edges such edges (the re-step is off)."""
+    med, n = _ak.edge_jump_median(a, b, keep, np.ascontiguousarray(comp, np.int64), labels, lines, model.xy_junction,
+                                  int(model.index_min), float(model.fx_proj), UNLABELLED)
+    if n < min_edges:
+        return math.inf
+    return options.skip_tol_sigma * 1.4826 * float(med)
+
+
 def _outlier_limit(r: np.ndarray, options: LabelOptions) -> float:
     """max(outlier_sigma·σ̂, max_residual_px), σ̂ = 1.4826·median|r| (half-normal: median |r| = 0.674 σ)."""
     med = float(_k.median_finite(np.ascontiguousarray(r, np.float64)))
@@ -325,7 +349,9 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
 
     xy_cam: (M, 2) normalised camera coordinates of obs.q_junction. stats["junctions_left_out"] counts the
     junctions left out by reason (LEFT_OUT_REASONS); stats["components_split"] the components cut at
-    outlier junctions; stats["ambiguity_noise_split"] (when any) the components accepted by decision 0122's test.
+    outlier junctions; stats["ambiguity_noise_split"] (when any) the components accepted by decision 0122's test;
+    stats["edges_restepped"] and stats["components_restepped"] (when any) the edges given another step and the components
+    labelled again for it (decision 0125).
 
     Speed (decisions 0067, 0078, 0087): the graph walk (`clean_edges`, `_propagate`), the components' groups,
     each component's candidate offsets, scores, depth walk and residuals (`offset_choice`: one call) and the
@@ -343,7 +369,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     # `clean_edges` then `_propagate` on the kept edges, with the edge arrays made once: the walk takes the kept
     # edges in their order (`propagate`'s keep), as it took the filtered copy (decision 0096)
     edges_all = np.asarray(obs.edges, np.int64).reshape(-1, 2)
-    delta_all = np.asarray(obs.edge_delta, np.int64).reshape(-1, 2)
+    delta_all = obs_delta = np.asarray(obs.edge_delta, np.int64).reshape(-1, 2)
     e_arrays = _edge_arrays(edges_all, delta_all)
     keep, removed = _k.clean_edges(int(M), *e_arrays, 2)
     stats["contradicting_edges"] = int(removed)
@@ -391,10 +417,47 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
 
         clusters = _clusters
 
-    # Work list: (members, split round, first-round group or −1). Pieces split off are relabelled on their own.
-    work = [(order[bounds[g] : bounds[g + 1]], 0, g) for g in range(len(bounds) - 1)]
+    # Edges that skip crossings (decision 0125): the tolerance of the residual jump across an edge, from the kept
+    # edges of the components the first round wrote; only when a component may come out ambiguous.
+    skip_tol = math.inf
+    if options.skip_edges and bool((g_ok.astype(np.bool_) & ~g_written.astype(np.bool_)).any()):
+        skip_tol = _edge_jump_tol(model, lines, labels, comp, e_arrays[0], e_arrays[1], keep, options)
+
+    def _restep(members, off):
+        """Decision 0125: give the component's edges the steps the epipolar geometry names under offset off; the
+        re-propagated pieces, or None when no edge changes."""
+        nonlocal delta_all, edges
+        pos_m = np.full(M, -1, np.intp)
+        pos_m[members] = np.arange(len(members))
+        sel = np.flatnonzero(keep & (pos_m[edges_all[:, 0]] >= 0) & (pos_m[edges_all[:, 1]] >= 0))
+        if len(sel) == 0:
+            return None
+        sub_e = pos_m[edges_all[sel]]
+        k = _ak.edge_steps(np.ascontiguousarray(sub_e[:, 0]), np.ascontiguousarray(sub_e[:, 1]),
+                           np.ascontiguousarray(delta_all[sel, 0]), np.ascontiguousarray(delta_all[sel, 1]),
+                           np.ascontiguousarray(rel[members] + np.asarray(off, np.int64)), np.ascontiguousarray(lines[members]),
+                           model.xy_junction, int(model.index_min), int(model.index_max), float(model.fx_proj),
+                           int(options.skip_max_steps), float(skip_tol))
+        changed = k != 1
+        if not changed.any():
+            return None
+        if delta_all is obs_delta:
+            delta_all = delta_all.copy()
+        delta_all[sel[changed]] *= k[changed, None]
+        edges = None  # the split's kept edges are made again with the new steps
+        stats["edges_restepped"] = stats.get("edges_restepped", 0) + int(changed.sum())
+        sub_arrays = _edge_arrays(sub_e, delta_all[sel])
+        keep_s, _ = _k.clean_edges(len(members), *sub_arrays, 2)
+        keep[sel[~keep_s]] = False
+        sub_rel, sub_comp = _k.propagate(len(members), *sub_arrays, keep_s)
+        rel[members] = sub_rel
+        return [members[p] for p in _groups(sub_comp)]
+
+    # Work list: (members, split round, first-round group or −1, edges may be re-stepped). Pieces split off are
+    # relabelled on their own.
+    work = [(order[bounds[g] : bounds[g + 1]], 0, g, True) for g in range(len(bounds) - 1)]
     while work:
-        members, rounds, g = work.pop()
+        members, rounds, g, may_restep = work.pop()
         m = len(members)
         if rounds == 0 and m < options.min_component:
             left["component_too_small"] += m
@@ -404,6 +467,14 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             left["split_too_small"] += m
             continue
         limit = None
+        pieces_box: list = []
+        restep = None
+        if may_restep and math.isfinite(skip_tol):
+            def restep(off, members=members, pieces_box=pieces_box):
+                pieces = _restep(members, off)
+                if pieces is not None:
+                    pieces_box.append(pieces)
+                return pieces is not None
         if g >= 0 and g_written[g]:
             # accepted and written in the compiled call (`_choice_of`'s path without the retry)
             stats["out_of_depth_range"] += int(g_fail[g])
@@ -421,12 +492,20 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             ch = _choice_of(model, rel[members] if ok_g else None, lines[members] if ok_g else None, xy_cam[members] if ok_g else None,
                             options, stats, True, int(g_status[g]), g_fail[g], ok_g, g_s1[g], g_s2[g], int(g_neff[g]),
                             g_off[g], g_r[b0:b1] if ok_g else None, g_in[b0:b1] if ok_g else None, g_limit[g], members=members, graph=graph,
-                            retry_limit_px=retry_limit)
+                            retry_limit_px=retry_limit, restep=restep)
             limit = float(g_limit[g])
         else:
             ch = _choose_offset(model, rel[members], lines[members], xy_cam[members], options, stats, members=members, graph=graph,
-                                retry_limit_px=retry_limit)
+                                retry_limit_px=retry_limit, restep=restep)
         if not (g >= 0 and g_written[g]):
+            if ch.reason == "restepped":
+                # labelled again with the new steps (once): pieces the re-propagation separates on their own
+                stats["components_restepped"] = stats.get("components_restepped", 0) + 1
+                for p in pieces_box[0]:
+                    component[p] = next_id
+                    next_id += 1
+                    work.append((p, rounds, -1, False))
+                continue
             if ch.reason is not None:
                 left[ch.reason] += m
                 if ch.reason == "ambiguous":
@@ -466,7 +545,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         for g in _groups(sub_comp):
             component[outl[g]] = next_id
             next_id += 1
-            work.append((outl[g], rounds + 1, -1))
+            work.append((outl[g], rounds + 1, -1, True))
     stats["junctions_left_out"] = left
     return Labels(labels, residual, component, stats)
 

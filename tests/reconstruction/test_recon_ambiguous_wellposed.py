@@ -160,7 +160,7 @@ def test_a_chain_with_half_its_labels_a_line_off_is_split_not_left_out():
         e_s.append((len(patch) + k, len(patch) + k + 1)), d_s.append((0, 1))  # the skip at (6, −1) → (6, 1) too
     e_s = np.array(e_s)
     d_s = np.array(d_s)
-    off = _label(model, procam, q_s, e_s, d_s, frame_retry_limit=False)
+    off = _label(model, procam, q_s, e_s, d_s, frame_retry_limit=False, skip_edges=False)
     n_off, good_off = _count(off, truth_s)
     on = _label(model, procam, q_s, e_s, d_s)
     n_on, good_on = _count(on, truth_s)
