@@ -1609,6 +1609,33 @@ def _pairwise_sum(a, lo, n):
 
 
 @njit
+def _reference_junctions(ln, n_refs):
+    """The junctions with finite epipolar lines ln (m, 3) (ids, ascending) and the reference junctions among
+    them (ids, sorted): n_refs spread over them as np.linspace would. Shared by `offset_scores` and
+    `offset_scores_b`."""
+    m = ln.shape[0]
+    okpos = np.empty(m, np.intp)
+    n_ok = 0
+    for a in range(m):
+        if math.isfinite(ln[a, 0]) and math.isfinite(ln[a, 1]) and math.isfinite(ln[a, 2]):
+            okpos[n_ok] = a
+            n_ok += 1
+    okpos = okpos[:n_ok]
+    if n_ok == 0:
+        return okpos, np.zeros(0, np.intp)
+    num = min(n_refs, n_ok)
+    pick = np.empty(num, np.intp)
+    if num == 1:
+        pick[0] = 0
+    else:
+        step = (n_ok - 1) / (num - 1)
+        for i in range(num - 1):
+            pick[i] = int(i * step + 0.0)
+        pick[num - 1] = n_ok - 1
+    return okpos, np.unique(okpos[pick])
+
+
+@njit
 def offset_scores(rel, ln, xy_junction, index_min, index_max, fx, n_refs, band_px, min_inside, cap2):
     """The candidate offsets of one component and their scores (labelling._choose_offset, first half).
 
@@ -1622,33 +1649,13 @@ def offset_scores(rel, ln, xy_junction, index_min, index_max, fx, n_refs, band_p
     ranked (C,) (stable argsort of score) and the number of junctions with finite lines."""
     m = rel.shape[0]
     L = index_max - index_min + 1
-    ok = np.empty(m, np.bool_)
-    n_ok = 0
-    for a in range(m):
-        ok[a] = math.isfinite(ln[a, 0]) and math.isfinite(ln[a, 1]) and math.isfinite(ln[a, 2])
-        if ok[a]:
-            n_ok += 1
     off = np.zeros((0, 2), np.int64)
     score = np.zeros(0)
     ranked = np.zeros(0, np.intp)
+    okpos, refs = _reference_junctions(ln, n_refs)
+    n_ok = okpos.shape[0]
     if n_ok == 0:
         return 1, off, score, ranked, n_ok
-    okpos = np.empty(n_ok, np.intp)
-    c = 0
-    for a in range(m):
-        if ok[a]:
-            okpos[c] = a
-            c += 1
-    num = min(n_refs, n_ok)
-    pick = np.empty(num, np.intp)
-    if num == 1:
-        pick[0] = 0
-    else:
-        step = (n_ok - 1) / (num - 1)
-        for i in range(num - 1):
-            pick[i] = int(i * step + 0.0)
-        pick[num - 1] = n_ok - 1
-    refs = np.unique(okpos[pick])
     # candidate keys (I, J) -> (I − I0)·S + (J − J0), I0/J0 and S covering every possible offset
     rmax0 = rel[:, 0].max()
     rmin1 = rel[:, 1].min()
@@ -1765,33 +1772,13 @@ def offset_scores_b(rel, ln, xy_junction, blocks, B, index_min, index_max, fx, n
     the direct count."""
     m = rel.shape[0]
     L = index_max - index_min + 1
-    ok = np.empty(m, np.bool_)
-    n_ok = 0
-    for a in range(m):
-        ok[a] = math.isfinite(ln[a, 0]) and math.isfinite(ln[a, 1]) and math.isfinite(ln[a, 2])
-        if ok[a]:
-            n_ok += 1
     off = np.zeros((0, 2), np.int64)
     score = np.zeros(0)
     ranked = np.zeros(0, np.intp)
+    okpos, refs = _reference_junctions(ln, n_refs)
+    n_ok = okpos.shape[0]
     if n_ok == 0:
         return 1, off, score, ranked, n_ok
-    okpos = np.empty(n_ok, np.intp)
-    c = 0
-    for a in range(m):
-        if ok[a]:
-            okpos[c] = a
-            c += 1
-    num = min(n_refs, n_ok)
-    pick = np.empty(num, np.intp)
-    if num == 1:
-        pick[0] = 0
-    else:
-        step = (n_ok - 1) / (num - 1)
-        for i in range(num - 1):
-            pick[i] = int(i * step + 0.0)
-        pick[num - 1] = n_ok - 1
-    refs = np.unique(okpos[pick])
     # candidate keys (I, J) -> (I − I0)·S + (J − J0), I0/J0 and S covering every possible offset
     rmin0 = rel[:, 0].min()
     rmax0 = rel[:, 0].max()
