@@ -1609,6 +1609,39 @@ def _pairwise_sum(a, lo, n):
 
 
 @njit
+def _admissible_scores(ks, adm, n_adm, S, I0, J0, rel, okpos, ln, xy_junction, index_min, index_max, fx, cap2):
+    """The admissible candidates' offsets off (n_adm, 2) (keys ks (C,), adm (C,) bool; key = (I − I0)·S + (J − J0)),
+    their scores (the mean over the junctions okpos with finite lines of min(residual², cap2), pairwise summation;
+    labels outside the pattern count cap2) and ranked (stable argsort). Shared by `offset_scores` and
+    `offset_scores_b`."""
+    n_ok = okpos.shape[0]
+    off = np.empty((n_adm, 2), np.int64)
+    c = 0
+    for k in range(ks.shape[0]):
+        if adm[k]:
+            off[c, 0] = ks[k] // S + I0
+            off[c, 1] = ks[k] % S + J0
+            c += 1
+    score = np.empty(n_adm)
+    row = np.empty(n_ok)
+    for k in range(n_adm):
+        for t in range(n_ok):
+            a = okpos[t]
+            i = rel[a, 0] + off[k, 0]
+            j = rel[a, 1] + off[k, 1]
+            if i >= index_min and i <= index_max and j >= index_min and j <= index_max:
+                x = xy_junction[i - index_min, j - index_min, 0]
+                y = xy_junction[i - index_min, j - index_min, 1]
+                res = abs(ln[a, 0] * x + ln[a, 1] * y + ln[a, 2]) * fx
+                row[t] = min(res * res, cap2)
+            else:
+                row[t] = cap2
+        score[k] = _pairwise_sum(row, 0, n_ok) / n_ok
+    ranked = np.argsort(score, kind="mergesort")
+    return off, score, ranked
+
+
+@njit
 def _reference_junctions(ln, n_refs):
     """The junctions with finite epipolar lines ln (m, 3) (ids, ascending) and the reference junctions among
     them (ids, sorted): n_refs spread over them as np.linspace would. Shared by `offset_scores` and
@@ -1697,29 +1730,7 @@ def offset_scores(rel, ln, xy_junction, index_min, index_max, fx, n_refs, band_p
             n_adm += 1
     if n_adm == 0:
         return 3, off, score, ranked, n_ok
-    off = np.empty((n_adm, 2), np.int64)
-    c = 0
-    for k in range(C_all):
-        if adm[k]:
-            off[c, 0] = ks[k] // S + I0
-            off[c, 1] = ks[k] % S + J0
-            c += 1
-    score = np.empty(n_adm)
-    row = np.empty(n_ok)
-    for k in range(n_adm):
-        for t in range(n_ok):
-            a = okpos[t]
-            i = rel[a, 0] + off[k, 0]
-            j = rel[a, 1] + off[k, 1]
-            if i >= index_min and i <= index_max and j >= index_min and j <= index_max:
-                x = xy_junction[i - index_min, j - index_min, 0]
-                y = xy_junction[i - index_min, j - index_min, 1]
-                res = abs(ln[a, 0] * x + ln[a, 1] * y + ln[a, 2]) * fx
-                row[t] = min(res * res, cap2)
-            else:
-                row[t] = cap2
-        score[k] = _pairwise_sum(row, 0, n_ok) / n_ok
-    ranked = np.argsort(score, kind="mergesort")
+    off, score, ranked = _admissible_scores(ks, adm, n_adm, S, I0, J0, rel, okpos, ln, xy_junction, index_min, index_max, fx, cap2)
     return 0, off, score, ranked, n_ok
 
 
@@ -1864,29 +1875,7 @@ def offset_scores_b(rel, ln, xy_junction, blocks, B, index_min, index_max, fx, n
                 n_adm += 1
     if n_adm == 0:
         return 3, off, score, ranked, n_ok
-    off = np.empty((n_adm, 2), np.int64)
-    c = 0
-    for k in range(C_all):
-        if adm[k]:
-            off[c, 0] = ks[k] // S + I0
-            off[c, 1] = ks[k] % S + J0
-            c += 1
-    score = np.empty(n_adm)
-    row = np.empty(n_ok)
-    for k in range(n_adm):
-        for t in range(n_ok):
-            a = okpos[t]
-            i = rel[a, 0] + off[k, 0]
-            j = rel[a, 1] + off[k, 1]
-            if i >= index_min and i <= index_max and j >= index_min and j <= index_max:
-                x = xy_junction[i - index_min, j - index_min, 0]
-                y = xy_junction[i - index_min, j - index_min, 1]
-                res = abs(ln[a, 0] * x + ln[a, 1] * y + ln[a, 2]) * fx
-                row[t] = min(res * res, cap2)
-            else:
-                row[t] = cap2
-        score[k] = _pairwise_sum(row, 0, n_ok) / n_ok
-    ranked = np.argsort(score, kind="mergesort")
+    off, score, ranked = _admissible_scores(ks, adm, n_adm, S, I0, J0, rel, okpos, ln, xy_junction, index_min, index_max, fx, cap2)
     return 0, off, score, ranked, n_ok
 
 

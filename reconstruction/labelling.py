@@ -470,11 +470,13 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         pieces_box: list = []
         restep = None
         if may_restep and math.isfinite(skip_tol):
-            def restep(off, members=members, pieces_box=pieces_box):
+            def _restep_component(off, members=members, pieces_box=pieces_box):
                 pieces = _restep(members, off)
                 if pieces is not None:
                     pieces_box.append(pieces)
                 return pieces is not None
+
+            restep = _restep_component
         if g >= 0 and g_written[g]:
             # accepted and written in the compiled call (`_choice_of`'s path without the retry)
             stats["out_of_depth_range"] += int(g_fail[g])

@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 
 from reconstruction._ambiguity_kernels import edge_steps
-from reconstruction.labelling import LabelOptions, label_epipolar
 from reconstruction.rigmodel import UNLABELLED
 
 _spec = importlib.util.spec_from_file_location("_amb_helpers_skip", Path(__file__).with_name("test_recon_ambiguous_wellposed.py"))
