@@ -18,7 +18,7 @@ from reconstruction.extraction import ExtractOptions, extract_grid
 from reconstruction.patterns import GridPattern
 from reconstruction.rigmodel import rig_model
 
-_OLD = ExtractOptions(shared_arms=False)  # before decision 0120 (the default while the switch is measured)
+_OLD = ExtractOptions(shared_arms=False)  # before decision 0120 (the default is on since the merge)
 _NEW = ExtractOptions(shared_arms=True)
 
 
