@@ -18,6 +18,13 @@ from reconstruction._jit import njit
 
 
 @njit
+def _signed_residual(ln, k, xy_junction, i, j, fx):
+    """The signed epipolar residual (projector px) of junction k (line ln[k], (l0, l1) unit) labelled with the
+    pattern junction at array index (i, j) of xy_junction (L, L, 2): (l · (x, y, 1))·fx."""
+    return (ln[k, 0] * xy_junction[i, j, 0] + ln[k, 1] * xy_junction[i, j, 1] + ln[k, 2]) * fx
+
+
+@njit
 def neighbour_noise2(members, rel, off_i, off_j, ln, xy_junction, index_min, index_max, fx, start, nbr, pos, cap2):
     """The independent junction noise of one component under one offset (module doc), in projector px².
 
@@ -37,7 +44,7 @@ def neighbour_noise2(members, rel, off_i, off_j, ln, xy_junction, index_min, ind
         i = rel[k, 0] + off_i - index_min
         j = rel[k, 1] + off_j - index_min
         if 0 <= i < L and 0 <= j < L:
-            r[k] = (ln[k, 0] * xy_junction[i, j, 0] + ln[k, 1] * xy_junction[i, j, 1] + ln[k, 2]) * fx
+            r[k] = _signed_residual(ln, k, xy_junction, i, j, fx)
     total = 0.0
     n = 0
     lim = 2.0 * cap2
@@ -82,7 +89,7 @@ def edge_steps(pa, pb, d_i, d_j, lab, ln, xy_junction, index_min, index_max, fx,
         ja = lab[a, 1] - index_min
         if not (0 <= ia < L and 0 <= ja < L):
             continue
-        ra = (ln[a, 0] * xy_junction[ia, ja, 0] + ln[a, 1] * xy_junction[ia, ja, 1] + ln[a, 2]) * fx
+        ra = _signed_residual(ln, a, xy_junction, ia, ja, fx)
         n_within = 0
         k_best = 1
         first_ok = False
@@ -93,7 +100,7 @@ def edge_steps(pa, pb, d_i, d_j, lab, ln, xy_junction, index_min, index_max, fx,
                 if k == 1:
                     break
                 continue
-            rb = (ln[b, 0] * xy_junction[ib, jb, 0] + ln[b, 1] * xy_junction[ib, jb, 1] + ln[b, 2]) * fx
+            rb = _signed_residual(ln, b, xy_junction, ib, jb, fx)
             dr = abs(rb - ra)
             if k == 1:
                 if not math.isfinite(dr) or dr <= tol_px:
@@ -127,8 +134,8 @@ def edge_jump_median(a, b, keep, comp, labels, ln, xy_junction, index_min, fx, u
         jp = labels[p, 1] - index_min
         iq = labels[q, 0] - index_min
         jq = labels[q, 1] - index_min
-        rp = (ln[p, 0] * xy_junction[ip, jp, 0] + ln[p, 1] * xy_junction[ip, jp, 1] + ln[p, 2]) * fx
-        rq = (ln[q, 0] * xy_junction[iq, jq, 0] + ln[q, 1] * xy_junction[iq, jq, 1] + ln[q, 2]) * fx
+        rp = _signed_residual(ln, p, xy_junction, ip, jp, fx)
+        rq = _signed_residual(ln, q, xy_junction, iq, jq, fx)
         d[c] = abs(rq - rp)
         c += 1
     if c == 0:
