@@ -94,8 +94,7 @@ class ExtractOptions:
         a surface seen obliquely), a candidate short of ring samples that sits in a row of such crossings (two
         opposite neighbours at one spacing) is counted again with the ring samples it shares with them, and an
         arm with fewer than 3 samples is fitted again from every sample of its family near the candidate outside
-        the crossings' cores (decision 0120). Full-resolution path only. Off by default until the label-stage
-        tests whose scenario floors it changes are re-measured (decision 0120, "Tests").
+        the crossings' cores (decision 0120). Full-resolution path only.
     corner_junctions: a candidate rejected only because one family ends at it (a T, straight arms) is kept as
         a junction (`corner_junctions.py`; stats["junction_corner"] says which). Off: measured not to pay
         (decision 0102). corner_dark: with it, only T's whose stem's missing side is dark (no lit lines there).
