@@ -95,6 +95,10 @@ class ExtractOptions:
         opposite neighbours at one spacing) is counted again with the ring samples it shares with them, and an
         arm with fewer than 3 samples is fitted again from every sample of its family near the candidate outside
         the crossings' cores (decision 0120). Full-resolution path only.
+    crossing_eigen_noise: a crossing candidate's weaker curvature −λ2 must be `threshold_sigma` standard
+        deviations of the noise of that one eigenvalue strong (about 0.6 of the Laplacian's noise, the noise of a
+        second derivative along one direction: `_second_derivative_noise_gain`) instead of the Laplacian's; off: the
+        Laplacian's, as a line sample's strength (decision 0129). Full-resolution path only.
     corner_junctions: a candidate rejected only because one family ends at it (a T, straight arms) is kept as
         a junction (`corner_junctions.py`; stats["junction_corner"] says which). Off: measured not to pay
         (decision 0102). corner_dark: with it, only T's whose stem's missing side is dark (no lit lines there).
@@ -117,6 +121,7 @@ class ExtractOptions:
     corner_junctions: bool = False
     corner_dark: bool = True
     shared_arms: bool = True
+    crossing_eigen_noise: bool = True
     debug: bool = False
 
 
@@ -242,8 +247,8 @@ def _work_buffer(shape: tuple[int, int]) -> np.ndarray:
     return buf
 
 
-def _ridges(G: np.ndarray, thr_lap, thr, neg_aniso, neg_cross, *, image: np.ndarray | None = None,
-            taps: tuple = ()) -> tuple:
+def _ridges(G: np.ndarray, thr_lap, thr, neg_aniso, neg_cross, thr_cross=np.float32(-1.0), *,
+            image: np.ndarray | None = None, taps: tuple = ()) -> tuple:
     """`_extract_kernels.ridge_pass` with its outputs in arrays owned by the calling thread (views of them
     are returned; `albedo_and_families` copies what it keeps, so nothing returned by `extract_grid` refers
     to them). The arrays start at 1/16 of the image's pixels and double when a frame needs more (decision
@@ -259,9 +264,9 @@ def _ridges(G: np.ndarray, thr_lap, thr, neg_aniso, neg_cross, *, image: np.ndar
             bufs = tuple(np.empty(cap, t) for t in (i64, i64, f32, f32, f32, f32, f32, i64, i64, f32))
             _workspace.ridge = bufs
         if image is not None:
-            n, m, mx = _k.smooth_ridges_u8(image, taps, G, thr_lap, thr, neg_aniso, neg_cross, *bufs)
+            n, m, mx = _k.smooth_ridges_u8(image, taps, G, thr_lap, thr, neg_aniso, neg_cross, *bufs, thr_cross)
         else:
-            n, m, mx = _k.ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, *bufs)
+            n, m, mx = _k.ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, *bufs, thr_cross)
         if m >= 0:
             break
         cap = min(2 * cap, most)
@@ -327,6 +332,24 @@ def _laplacian_noise_gain(sigma: float, scale: int) -> float:
     return float(np.sqrt(acc))
 
 
+@lru_cache(maxsize=16)
+def _second_derivative_noise_gain(sigma: float, scale: int) -> float:
+    """Std of the working image's second difference along one axis ([1, −2, 1]) per unit std of white pixel
+    noise (as `_laplacian_noise_gain`). The smoothed noise is isotropic, so this is the noise of the second
+    derivative along any direction, to first order that of the weaker Hessian eigenvalue on a line or at a
+    crossing (about 0.6 × the Laplacian's; decision 0129)."""
+    n = 2 * (int(np.ceil(4 * sigma)) + 8)
+    k = np.array([[1.0, -2.0, 1.0]], np.float32)
+    acc = 0.0
+    for dy in range(scale):
+        for dx in range(scale):
+            delta = np.zeros((n, n), np.float32)
+            delta[n // 2 + dy, n // 2 + dx] = 1
+            resp = cv2.filter2D(_smooth(delta, sigma, scale), cv2.CV_32F, k, borderType=cv2.BORDER_REFLECT)
+            acc += float((resp.astype(np.float64) ** 2).sum())
+    return float(np.sqrt(acc))
+
+
 _PAD = 16  # margin (cells) of the lookup grids
 
 _dir_f32: tuple = (None, None)  # (model.dir_cam, its float32 (gh·gw, 4) copy): the last rig's
@@ -359,8 +382,11 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     noise_grey = image_noise_grey(img)
     noise = max(noise_grey, 0.5) * _laplacian_noise_gain(round(sigma, 3), scale)
     thr = options.threshold_sigma * noise
+    thr_cross = thr
+    if options.crossing_eigen_noise and scale == 1:  # −λ2 against its own noise, not the Laplacian's (0129)
+        thr_cross = options.threshold_sigma * max(noise_grey, 0.5) * _second_derivative_noise_gain(round(sigma, 3), scale)
     ridge_thr = (np.float32(-0.5 * thr), np.float32(thr), np.float32(-options.anisotropy),
-                 np.float32(-(options.crossing_anisotropy if scale == 1 else options.anisotropy)))
+                 np.float32(-(options.crossing_anisotropy if scale == 1 else options.anisotropy)), np.float32(thr_cross))
     if scale == 1 and _fused_smoothing(img, sigma):
         # --- 1–2. smoothing, ridge candidates and Steger samples in one walk (decision 0091; ms["smooth"]
         # holds both, ms["ridges"] is 0)
