@@ -54,6 +54,7 @@ import cv2
 import numpy as np
 
 from reconstruction import _extract_kernels as _k
+from reconstruction.crossing_candidates import merge_within, remap_grid
 from reconstruction.corner_junctions import corner_candidates, corner_kinds, dark_beyond
 from reconstruction.junction_arms import retry_trimmed_arms
 from reconstruction.rigmodel import RigModel
@@ -99,6 +100,9 @@ class ExtractOptions:
         deviations of the noise of that one eigenvalue strong (about 0.6 of the Laplacian's noise, the noise of a
         second derivative along one direction: `_second_derivative_noise_gain`) instead of the Laplacian's; off: the
         Laplacian's, as a line sample's strength (decision 0129). Full-resolution path only.
+    merge_close_candidates: crossing candidates closer than the core radius to each other (two maxima of one
+        elongated crossing blob, which would split its ring samples) are one candidate, at their score-weighted
+        mean position (`crossing_candidates.merge_within`, decision 0129).
     corner_junctions: a candidate rejected only because one family ends at it (a T, straight arms) is kept as
         a junction (`corner_junctions.py`; stats["junction_corner"] says which). Off: measured not to pay
         (decision 0102). corner_dark: with it, only T's whose stem's missing side is dark (no lit lines there).
@@ -122,6 +126,7 @@ class ExtractOptions:
     corner_dark: bool = True
     shared_arms: bool = True
     crossing_eigen_noise: bool = True
+    merge_close_candidates: bool = True
     debug: bool = False
 
 
@@ -470,6 +475,13 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         # over the core and one smoothing scale more: on wide flat-topped lines the weaker curvature
         # peaks near the corners of the crossing, the blob as a whole is centred (decision 0058)
         seeds = _k.centroids(seed_grid, xu, xv, xs, seeds[:, 0].copy(), seeds[:, 1].copy(), cs, _PAD, max(r0 + s_w, 1.5))
+        if options.merge_close_candidates:  # two maxima of one crossing's blob are one candidate (0129)
+            keep_m, remap_m, mx_, my_, n_merged = merge_within(seeds[:, 0].copy(), seeds[:, 1].copy(), seed_score, r0)
+            stats["junction_candidates_merged"] = int(n_merged)
+            if n_merged:
+                seeds = np.column_stack([mx_, my_])
+                seed_score = seed_score[keep_m]
+                remap_grid(seed_grid, remap_m)
 
     if options.debug:
         stats["debug_raw_candidates"] = seeds * scale
