@@ -11,11 +11,12 @@ top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055�
    passes through its square (non-maximum suppression across the line, one sample per pixel along it).
    Anisotropic pixels are line samples; pixels where both eigenvalues are clearly negative are crossing
    candidates (two bright lines crossing make a blob; λ2 < −0.25·|λ1| on the full-resolution path, which
-   admits crossings down to ~53° in the image, decision 0068).
+   admits crossings down to ~53° in the image, decision 0068; −λ2 above 5 deviations of its own noise, the
+   noise of one second derivative, decision 0129).
 3. Each sample's line direction is compared with the two families' directions predicted from the
    calibration (`RigModel.dir_cam`): the closer one names the family.
-4. Junctions: the crossing candidates' local maxima (non-maximum suppression on a grid of cells), each
-   sample assigned to the nearest one (a Voronoi partition on that grid). Around each, a straight line is
+4. Junctions: the crossing candidates' local maxima (non-maximum suppression on a grid of cells; two closer
+   than the core radius merged into one, decision 0129), each sample assigned to the nearest one (a Voronoi partition on that grid). Around each, a straight line is
    fitted to each family's samples outside the core, outliers trimmed, and the junction is the
    intersection of the two fits. A junction is kept only if both lines run *through* it (samples on both
    sides): T- and L-shapes are occlusion or shadow boundaries, or the pattern's rim.
