@@ -18,8 +18,9 @@ top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055â
 4. Junctions: the crossing candidates' local maxima (non-maximum suppression on a grid of cells; two closer
    than the core radius merged into one, decision 0129), each sample assigned to the nearest one (a Voronoi
    partition on that grid). Around each, a straight line is fitted to each family's samples outside the
-   core, outliers trimmed, and the junction is the intersection of the two fits. A junction is kept only if both lines run *through* it (samples on both
-   sides): T- and L-shapes are occlusion or shadow boundaries, or the pattern's rim.
+   core, outliers trimmed, and the junction is the intersection of the two fits. A junction is kept only
+   if both lines run *through* it (samples on both sides): T- and L-shapes are occlusion or shadow
+   boundaries, or the pattern's rim.
 5. Segments: samples outside the junction cores are linked to neighbours within 2 px that lie on the same
    line (same family, parallel normals, small offset across the line) and the links' connected components
    are the segments; kinks and gaps (depth edges, shadows) break them. A segment whose two ends reach two
