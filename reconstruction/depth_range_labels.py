@@ -32,8 +32,11 @@ by the trace's own tests (lateral jump, turn, ridge step).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from reconstruction._jit import njit
 from reconstruction.rigmodel import RigModel
 
 
@@ -77,9 +80,184 @@ def _fractional(c: np.ndarray, offs: np.ndarray, index_min: int) -> np.ndarray:
     return k
 
 
+@njit
+def _k_open_positions(sid, piece, index, n_p, min_samples):
+    """Trace positions (ascending) of the pieces without a labelled sample (finite index) of at least min_samples."""
+    n = sid.shape[0]
+    size = np.zeros(n_p, np.int64)
+    lab = np.zeros(n_p, np.bool_)
+    for a in range(n):
+        size[piece[a]] += 1
+        if math.isfinite(index[sid[a]]):
+            lab[piece[a]] = True
+    m = 0
+    for a in range(n):
+        if not lab[piece[a]] and size[piece[a]] >= min_samples:
+            m += 1
+    out = np.empty(m, np.int64)
+    m = 0
+    for a in range(n):
+        if not lab[piece[a]] and size[piece[a]] >= min_samples:
+            out[m] = a
+            m += 1
+    return out
+
+
+@njit
+def _fractional_k(c, offs, index_min):
+    """`_fractional` for one offset c among offs (increasing)."""
+    L = offs.shape[0]
+    if c < offs[0]:
+        return index_min + (c - offs[0]) / (offs[1] - offs[0])
+    if c > offs[L - 1]:
+        return index_min + L - 1 + (c - offs[L - 1]) / (offs[L - 1] - offs[L - 2])
+    lo = 0
+    hi = L - 1
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if offs[mid] <= c:
+            lo = mid
+        else:
+            hi = mid
+    d = offs[hi] - offs[lo]
+    return index_min + lo + ((c - offs[lo]) / d if d > 0 else 0.0)
+
+
+@njit
+def _k_stretch_one(x, y, fam, R, t, z, Kp, dist, has_dist, cu, cv, nn, offs, index_min):
+    """The family's fractional line coordinate of camera point (x, y, 1)·z (normalised, camera frame) seen by the
+    projector (NaN behind it)."""
+    px = t[0] + z * (R[0, 0] * x + R[0, 1] * y + R[0, 2])
+    py = t[1] + z * (R[1, 0] * x + R[1, 1] * y + R[1, 2])
+    pz = t[2] + z * (R[2, 0] * x + R[2, 1] * y + R[2, 2])
+    if not pz > 0:
+        return np.nan
+    u = px / pz
+    v = py / pz
+    if has_dist:
+        r2 = u * u + v * v
+        radial = 1 + r2 * (dist[0] + r2 * (dist[1] + r2 * dist[4]))
+        ud = u * radial + 2 * dist[2] * u * v + dist[3] * (r2 + 2 * u * u)
+        vd = v * radial + dist[2] * (r2 + 2 * v * v) + 2 * dist[3] * u * v
+        u, v = ud, vd
+    X = Kp[0, 0] * u + Kp[0, 1] * v + Kp[0, 2] - cu
+    Y = Kp[1, 1] * v + Kp[1, 2] - cv
+    f = fam - 1
+    return _fractional_k(Y - nn[f] * X, offs[f], index_min)
+
+
+@njit
+def _k_piece_candidates(xy, fam, pid, R, t, z0, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min, index_max, tol, other_family):
+    """Per piece (pid (m,) non-decreasing ids of the positions, xy (m, 2) their normalised camera coordinates, fam
+    (m,) their family): the single index inside the intersection of the widened stretches (tol (2,) per family,
+    index units), or index_min − 1 (none or several; or, with other_family, the other family's stretches share
+    an index too). Returns (piece ids (K,), index (K,)) of the pieces with one."""
+    m = xy.shape[0]
+    n_out = 0
+    ids = np.empty(m, np.int64)
+    ks = np.empty(m, np.int64)
+    a = 0
+    while a < m:
+        b = a
+        while b < m and pid[b] == pid[a]:
+            b += 1
+        f = fam[a]
+        g = 3 - f
+        lo_f = -np.inf
+        hi_f = np.inf
+        lo_g = -np.inf
+        hi_g = np.inf
+        for s in range(a, b):
+            c0 = _k_stretch_one(xy[s, 0], xy[s, 1], f, R, t, z0, Kp, dist, has_dist, cu, cv, nn, offs, index_min)
+            c1 = _k_stretch_one(xy[s, 0], xy[s, 1], f, R, t, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min)
+            if not (math.isfinite(c0) and math.isfinite(c1)):
+                lo_f = np.inf
+                break
+            lo_f = max(lo_f, min(c0, c1) - tol[f - 1])
+            hi_f = min(hi_f, max(c0, c1) + tol[f - 1])
+            if np.ceil(lo_f) > np.floor(hi_f):
+                break
+        k_lo = max(np.ceil(lo_f), index_min)
+        k_hi = min(np.floor(hi_f), index_max)
+        ok = k_lo == k_hi
+        if ok and other_family:
+            for s in range(a, b):
+                c0 = _k_stretch_one(xy[s, 0], xy[s, 1], g, R, t, z0, Kp, dist, has_dist, cu, cv, nn, offs, index_min)
+                c1 = _k_stretch_one(xy[s, 0], xy[s, 1], g, R, t, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min)
+                if not (math.isfinite(c0) and math.isfinite(c1)):
+                    lo_g = np.inf
+                    break
+                lo_g = max(lo_g, min(c0, c1) - tol[g - 1])
+                hi_g = min(hi_g, max(c0, c1) + tol[g - 1])
+                if np.ceil(lo_g) > np.floor(hi_g):
+                    break
+            if max(np.ceil(lo_g), index_min) <= min(np.floor(hi_g), index_max):
+                ok = False
+        if ok:
+            ids[n_out] = pid[a]
+            ks[n_out] = np.int64(k_lo)
+            n_out += 1
+        a = b
+    return ids[:n_out], ks[:n_out]
+
+
 def piece_indices(model: RigModel, q: np.ndarray, fam: np.ndarray, sid: np.ndarray, piece: np.ndarray, index: np.ndarray,
                   depth_range_mm: tuple[float, float], *, tol_px: float = 0.3, min_samples: int = 4, other_family: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The pieces the working volume labels (module doc): (piece ids (K,), their index (K,)). Pieces: `piece` (n,)
+    non-decreasing ids 0, 1, … of the trace positions, `sid` (n,) their sample ids; fam (P,) the samples' families;
+    index (P,) their labels so far (NaN: none). tol_px: the widening of each stretch, projector px. Steps 1–3 in
+    one compiled pass over the open pieces' samples (`_k_piece_candidates`), step 4 with `RigModel.sheet_depth`;
+    projectors with more than 5 distortion coefficients take `piece_indices_numpy`."""
+    n = len(sid)
+    none = (np.zeros(0, np.intp), np.zeros(0, np.intp))
+    if n == 0:
+        return none
+    proj = model.procam.projector
+    if proj.dist.size > 5:
+        return piece_indices_numpy(model, q, fam, sid, piece, index, depth_range_mm, tol_px=tol_px, min_samples=min_samples,
+                                   other_family=other_family)
+    sid = np.asarray(sid, np.int64)
+    piece = np.asarray(piece, np.int64)
+    pos = _k_open_positions(sid, piece, np.asarray(index, np.float64), int(piece[-1]) + 1, int(min_samples))
+    if len(pos) == 0:
+        return none
+    s = sid[pos]
+    f = np.asarray(fam)[s].astype(np.int64)
+    xy = np.ascontiguousarray(model.cam_normalised(q[s]), np.float64)
+    pat = model.pattern
+    dist = np.zeros(5)
+    dist[: min(5, proj.dist.size)] = np.asarray(proj.dist, np.float64).ravel()[:5]
+    tol = tol_px / np.asarray(model.line_spacing_perp_px, np.float64)
+    ids, k = _k_piece_candidates(xy, f, piece[pos], np.ascontiguousarray(model.procam.R_proj_cam, np.float64),
+                                 np.ascontiguousarray(model.procam.t_proj_cam, np.float64), float(depth_range_mm[0]),
+                                 float(depth_range_mm[1]), np.ascontiguousarray(proj.K, np.float64), dist, bool(proj.has_distortion),
+                                 float(pat.centre_px[0]), float(pat.centre_px[1]), np.array([pat.n1, pat.n2], np.float64),
+                                 np.ascontiguousarray(model.line_offsets_px, np.float64), int(model.index_min), int(model.index_max),
+                                 tol, bool(other_family))
+    if len(ids) == 0:
+        return none
+    return _inside_volume(model, q, fam, sid, piece, ids, k, depth_range_mm)
+
+
+def _inside_volume(model, q, fam, sid, piece, ids, k, depth_range_mm):
+    """Step 4: the pieces ids (with indices k) every sample of which lies inside the volume on its sheet k."""
+    n_p = int(piece[-1]) + 1
+    k_of = np.full(n_p, model.index_min - 1, np.intp)
+    k_of[ids] = k
+    sel = np.flatnonzero(k_of[piece] >= model.index_min)
+    ss = sid[sel]
+    z = model.sheet_depth(q[ss], np.asarray(fam)[ss], k_of[piece[sel]])
+    out = ~((z >= depth_range_mm[0]) & (z <= depth_range_mm[1]))
+    bad = np.zeros(n_p, bool)
+    bad[piece[sel][out]] = True
+    ok = ids[~bad[ids]]
+    return ok.astype(np.intp), k_of[ok]
+
+
+def piece_indices_numpy(model: RigModel, q: np.ndarray, fam: np.ndarray, sid: np.ndarray, piece: np.ndarray, index: np.ndarray,
+                  depth_range_mm: tuple[float, float], *, tol_px: float = 0.3, min_samples: int = 4, other_family: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """`piece_indices` in NumPy (the reference the compiled path reproduces; projectors with more than 5 distortion
+    coefficients). The pieces the working volume labels: (piece ids (K,), their index (K,)). Pieces: `piece` (n,)
     non-decreasing ids 0, 1, … of the trace positions, `sid` (n,) their sample ids; fam (P,) the samples' families;
     index (P,) their labels so far (NaN: none). tol_px: the widening of each stretch, projector px."""
     n = len(sid)

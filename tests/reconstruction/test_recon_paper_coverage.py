@@ -144,3 +144,39 @@ def test_parallel_rig_coverage_rises_and_option_turns_it_off(parallel_runs):
     cov_off = coverage_lines(truth, sc.pattern, runs[False].q_cam)
     cov_on = coverage_lines(truth, sc.pattern, runs[True].q_cam)
     assert cov_on > cov_off + 0.005
+
+
+def test_compiled_pass_reproduces_numpy(parallel_rig):
+    """Many pieces in one call (some labelled, some short, both families, right and wrong): the compiled path
+    (`_k_piece_candidates`) gives the NumPy formulation's pieces and indices."""
+    from reconstruction.depth_range_labels import piece_indices_numpy
+
+    sc, model = parallel_rig
+    rng = np.random.default_rng(3)
+    lo_z, hi_z = sc.depth_range_mm
+    qs, fams, pieces, index = [], [], [], []
+    p = 0
+    while p < 200:
+        family = int(rng.integers(1, 3))
+        n = int(rng.integers(2, 30))
+        other = rng.uniform(-12, 12) + np.linspace(0, n / 40.0, n)
+        normal = rng.normal(size=3) * 0.3 + np.array([0.0, 0.0, 1.0])
+        q, z = _line_points(sc, family, int(rng.integers(-12, 13)), other, normal, rng.uniform(lo_z * 0.95, hi_z * 1.05))
+        if not np.all(np.isfinite(q)):
+            continue
+        qs.append(q + rng.normal(scale=0.05, size=q.shape))
+        fams.append(np.full(n, family if rng.random() < 0.8 else 3 - family))
+        pieces.append(np.full(n, p))
+        idx = np.full(n, np.nan)
+        if rng.random() < 0.1:
+            idx[0] = 0.0
+        index.append(idx)
+        p += 1
+    q, fam, piece, index = map(np.concatenate, (qs, fams, pieces, index))
+    sid = np.arange(len(q))
+    for of in (True, False):
+        for tol in (0.3, 1.0):
+            a = piece_indices(model, q, fam, sid, piece, index, sc.depth_range_mm, tol_px=tol, other_family=of)
+            b = piece_indices_numpy(model, q, fam, sid, piece, index, sc.depth_range_mm, tol_px=tol, other_family=of)
+            assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    assert len(piece_indices(model, q, fam, sid, piece, index, sc.depth_range_mm, other_family=False)[0]) > 5
