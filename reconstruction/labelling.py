@@ -832,7 +832,6 @@ class TraceOptions:
     beside_lines_ends: bool = True
     depth_range_labels: bool = True
     depth_range_tol: float = 3.0
-    depth_range_late: bool = False  # development switch: run after the surface steps instead
 
 
 @dataclass(frozen=True, eq=False)
@@ -1266,7 +1265,7 @@ def label_samples(
                                                                      min_angle_deg=options.continue_gap_deg))
             grid = _sample_grid(q, valid, sid, trace_grid_cell_px(model, options), fam, prep)
         noise_floor = (label_options or LabelOptions()).noise_floor_px
-        if options.depth_range_labels and not options.depth_range_late and model is not None:
+        if options.depth_range_labels and model is not None:
             # pieces the working volume alone names (decision 0128)
             stats["samples_depth_range"] = label_depth_range_pieces(
                 model, q, fam, sid, piece, ts, index, depth_range_mm, tol_px=options.depth_range_tol * noise_floor,
@@ -1326,10 +1325,6 @@ def label_samples(
                                     tol_px=options.cross_residual_px, lateral_px=options.seed_lateral_px * cell,
                                     min_samples=options.cross_min_samples, anchor=options.fill_anchor, ends=options.beside_lines_ends)
             stats["samples_beside_lines"] = bl["samples"]
-        if options.depth_range_labels and options.depth_range_late and model is not None:
-            stats["samples_depth_range"] = label_depth_range_pieces(
-                model, q, fam, sid, piece, ts, index, depth_range_mm, tol_px=options.depth_range_tol * noise_floor,
-                min_samples=options.cross_min_samples, trim_px=options.cross_trim_sigma * sigma_px)
         if options.far_end_check and model is not None and grid is not None:
             # a seeded trace that ran across a depth edge onto a collinear line of another surface: the
             # crossing at its far end names another line (decision 0084, `reconstruction.trace_ends`)
