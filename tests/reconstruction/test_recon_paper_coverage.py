@@ -180,3 +180,10 @@ def test_compiled_pass_reproduces_numpy(parallel_rig):
             b = piece_indices_numpy(model, q, fam, sid, piece, index, sc.depth_range_mm, tol_px=tol, other_family=of)
             assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
     assert len(piece_indices(model, q, fam, sid, piece, index, sc.depth_range_mm, other_family=False)[0]) > 5
+
+
+def test_paper_labeller_keeps_the_papers_method(parallel_runs):
+    sc, image, truth, runs = parallel_runs
+    opts = ReconstructOptions(labeller="paper", depth_min_mm=sc.depth_range_mm[0], depth_max_mm=sc.depth_range_mm[1])
+    res = reconstruct(image, sc.procam, sc.pattern, options=opts)
+    assert res.stats["samples_depth_range"] == 0
