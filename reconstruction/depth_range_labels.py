@@ -13,21 +13,26 @@ The rule, for every trace piece without a labelled sample and with at least `min
 1. Each sample's stretch: its camera ray at z = depth_min_mm and z = depth_max_mm, projected into the projector
    (with its distortion), and the family's fractional line coordinate at both ends (`RigModel.line_offsets_px`,
    extrapolated beyond the pattern). Widened by `tol_px` projector px on either end (in the family's
-   across-line units): the sample's position noise and the calibration's epipolar error.
+   across-line units; the label stage passes 3 × the epipolar noise floor): the sample's position noise and the
+   calibration's epipolar error.
 2. The piece's admissible indices: the integers inside the intersection of its samples' widened stretches and
    inside the pattern. Exactly one, k, is required; none or several: the piece stays unlabelled.
-3. Away from both ends of the intersection by its own noise: the piece's samples also lie on sheet k inside
-   the working volume (`RigModel.sheet_depth`, the triangulation's own sheet): every sample's depth inside
-   [depth_min_mm, depth_max_mm].
+3. The family: read as lines of the other family, the piece's stretches share no index. A piece of the other
+   family's line (given this family by mistake where the families' image directions come close) would be
+   labelled with a line it is not on; it drifts by one line of this family per junction step along itself, so a
+   long one fails step 2, but short ones pass it (two on converged-1280 did, decision 0128): any piece that could
+   be the other family's line inside the volume is left alone.
+4. Every sample on sheet k (`RigModel.sheet_depth`, the triangulation's own sheet) inside [depth_min_mm,
+   depth_max_mm] (the widening of step 1 may admit a sheet that puts some samples just outside).
+5. (`label_pieces`) The samples farther than `trim_px` from both ends of the piece take k.
 
 Why this is safe where one-sided evidence is not (decisions 0049, 0089, 0093): no neighbour is involved; the
 only assumption is the working volume itself, which the labeller already relies on (offsets outside it are
 discarded) and the triangulation enforces (points outside it are dropped). A sample's true sheet puts it at its
 true depth, inside the working volume, so the true index is always admissible, and when it is the only one it
-is the right one — provided the piece is one line's samples of the family it was given. A piece of the other
-family (given this family by mistake) drifts by one line per junction step along itself: its stretches do not
-share an integer once it is longer than the stretch (step 2 then finds none). A piece joining two lines is cut
-by the trace's own tests (lateral jump, turn, ridge step).
+is the right one — provided the piece is one line's samples of the family it was given (step 3). A piece joining
+two lines is cut by the trace's own tests (lateral jump, turn, ridge step). A lit surface outside the working
+volume breaks the assumption: its pieces can take a wrong line (the component labeller relies on the volume too).
 """
 
 from __future__ import annotations
@@ -289,7 +294,7 @@ def piece_indices_numpy(model: RigModel, q: np.ndarray, fam: np.ndarray, sid: np
     k_of = np.full(n_p, model.index_min - 1, np.intp)
     k_of[ids[one]] = k_lo[one].astype(np.intp)
     if other_family:
-        # 4. the family: as lines of the other family the piece's stretches share no index either
+        # 3. the family: as lines of the other family the piece's stretches share no index either
         g = 3 - f
         lo_g, hi_g = index_stretch(model, q[s], g, depth_range_mm)
         tol_g = tol_px / np.asarray(model.line_spacing_perp_px)[g - 1]
@@ -300,7 +305,7 @@ def piece_indices_numpy(model: RigModel, q: np.ndarray, fam: np.ndarray, sid: np
         one &= g_lo > g_hi
         if not one.any():
             return none
-    # 3. every sample of the piece on sheet k inside the working volume
+    # 4. every sample of the piece on sheet k inside the working volume
     sel = np.flatnonzero(k_of[pid] >= model.index_min)
     z = model.sheet_depth(q[s[sel]], f[sel], k_of[pid[sel]])
     out = ~((z >= depth_range_mm[0]) & (z <= depth_range_mm[1]))
