@@ -62,6 +62,9 @@ class LabelOptions:
         max(outlier_sigma·σ̂_frame, max_residual_px), σ̂_frame the robust residual scale of the junctions the first
         round accepted: a component whose own scale is inflated by wrong relative labels (half its junctions a
         line off) would otherwise count every junction an inlier (decision 0123).
+    ill_posed_at_floor: the rig's labelling margin is judged "ill-posed" (the frame's warning, `rig check`) below
+        min_rms_ratio × noise_floor_px, the runner-up miss this test needs (decision 0130); False: below the fixed
+        0.1 px of decision 0004.
     candidate_band_px: offsets are proposed by pattern junctions this close to a reference junction's
         epipolar line. candidate_refs: how many reference junctions per component.
     outlier_sigma, max_residual_px: after the offset is chosen, a junction farther from its epipolar line
@@ -87,6 +90,7 @@ class LabelOptions:
     neighbour_noise: bool = True
     frame_retry_limit: bool = True
     skip_edges: bool = True
+    ill_posed_at_floor: bool = True
     skip_max_steps: int = 6
     skip_tol_sigma: float = 4.0
     candidate_band_px: float = 4.0
