@@ -30,6 +30,7 @@ from reconstruction import _ambiguity_kernels as _ak
 from reconstruction import _label_kernels as _k
 from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.depth_range_labels import label_pieces as label_depth_range_pieces
+from reconstruction.edge_cuts import edge_misfits
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import camera_rays_proj, epipolar_lines, paper_epipolar_mb
 from reconstruction.piece_junctions import label_piece_junctions
@@ -62,6 +63,14 @@ class LabelOptions:
         max(outlier_sigma·σ̂_frame, max_residual_px), σ̂_frame the robust residual scale of the junctions the first
         round accepted: a component whose own scale is inflated by wrong relative labels (half its junctions a
         line off) would otherwise count every junction an inlier (decision 0123).
+    cut_misfit_edges: where `skip_edges` reads an ambiguous component's edges, an edge whose residual jump no step
+        along its own line explains is cut: it joins another line or surface (`edge_cuts`, decision 0130). The jump
+        must exceed max(outlier_sigma·σ̂_Δ, max_residual_px) (σ̂_Δ = τ / skip_tol_sigma) for every k in
+        1 … skip_max_steps, across the edge and between the local medians of its two ends' neighbourhoods; pieces
+        it cuts off need min_split_component junctions. Needs `skip_edges`.
+    ill_posed_at_floor: the rig's labelling margin is judged "ill-posed" (the frame's warning, `rig check`) below
+        min_rms_ratio × noise_floor_px, the runner-up miss this test needs (decision 0130); False: below the fixed
+        0.1 px of decision 0004.
     candidate_band_px: offsets are proposed by pattern junctions this close to a reference junction's
         epipolar line. candidate_refs: how many reference junctions per component.
     outlier_sigma, max_residual_px: after the offset is chosen, a junction farther from its epipolar line
@@ -87,6 +96,8 @@ class LabelOptions:
     neighbour_noise: bool = True
     frame_retry_limit: bool = True
     skip_edges: bool = True
+    ill_posed_at_floor: bool = True
+    cut_misfit_edges: bool = True
     skip_max_steps: int = 6
     skip_tol_sigma: float = 4.0
     candidate_band_px: float = 4.0
@@ -425,8 +436,9 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         skip_tol = _edge_jump_tol(model, lines, labels, comp, e_arrays[0], e_arrays[1], keep, options)
 
     def _restep(members, off):
-        """Decision 0125: give the component's edges the steps the epipolar geometry names under offset off; the
-        re-propagated pieces, or None when no edge changes."""
+        """Decision 0125: give the component's edges the steps the epipolar geometry names under offset off, and cut
+        those no step explains (decision 0130); (the re-propagated pieces, whether an edge was cut), or None when no
+        edge changes."""
         nonlocal delta_all, edges
         pos_m = np.full(M, -1, np.intp)
         pos_m[members] = np.arange(len(members))
@@ -434,25 +446,39 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         if len(sel) == 0:
             return None
         sub_e = pos_m[edges_all[sel]]
-        k = _ak.edge_steps(np.ascontiguousarray(sub_e[:, 0]), np.ascontiguousarray(sub_e[:, 1]),
-                           np.ascontiguousarray(delta_all[sel, 0]), np.ascontiguousarray(delta_all[sel, 1]),
-                           np.ascontiguousarray(rel[members] + np.asarray(off, np.int64)), np.ascontiguousarray(lines[members]),
-                           model.xy_junction, int(model.index_min), int(model.index_max), float(model.fx_proj),
-                           int(options.skip_max_steps), float(skip_tol))
+        step_args = (np.ascontiguousarray(sub_e[:, 0]), np.ascontiguousarray(sub_e[:, 1]),
+                     np.ascontiguousarray(delta_all[sel, 0]), np.ascontiguousarray(delta_all[sel, 1]),
+                     np.ascontiguousarray(rel[members] + np.asarray(off, np.int64)), np.ascontiguousarray(lines[members]),
+                     model.xy_junction, int(model.index_min), int(model.index_max), float(model.fx_proj),
+                     int(options.skip_max_steps), float(skip_tol))
+        k = _ak.edge_steps(*step_args)
         changed = k != 1
-        if not changed.any():
+        # edges no step along their line explains: cut (decision 0130)
+        cut = np.zeros(len(sel), np.bool_)
+        if options.cut_misfit_edges:
+            start, nbr, pos = graph.adjacency()
+            # the jump must be an outlier as a junction's residual is (decision 0044's max(6σ̂, 0.3 px), with the
+            # frame's neighbour scale σ̂_Δ = τ / skip_tol_sigma), and no step along the line may fit within it
+            cut_tol = max(options.outlier_sigma / options.skip_tol_sigma * float(skip_tol), options.max_residual_px)
+            cut = edge_misfits(*step_args[:-1], float(cut_tol), np.ascontiguousarray(members, np.intp), start, nbr, pos) & ~changed
+        if not changed.any() and not cut.any():
             return None
-        if delta_all is obs_delta:
-            delta_all = delta_all.copy()
-        delta_all[sel[changed]] *= k[changed, None]
-        edges = None  # the split's kept edges are made again with the new steps
-        stats["edges_restepped"] = stats.get("edges_restepped", 0) + int(changed.sum())
+        if changed.any():
+            if delta_all is obs_delta:
+                delta_all = delta_all.copy()
+            delta_all[sel[changed]] *= k[changed, None]
+            stats["edges_restepped"] = stats.get("edges_restepped", 0) + int(changed.sum())
+        edges = None  # the split's kept edges are made again with the new steps and without the cut edges
+        if cut.any():
+            stats["edges_cut"] = stats.get("edges_cut", 0) + int(cut.sum())
+            keep[sel[cut]] = False
+            sel, sub_e = sel[~cut], sub_e[~cut]
         sub_arrays = _edge_arrays(sub_e, delta_all[sel])
         keep_s, _ = _k.clean_edges(len(members), *sub_arrays, 2)
         keep[sel[~keep_s]] = False
         sub_rel, sub_comp = _k.propagate(len(members), *sub_arrays, keep_s)
         rel[members] = sub_rel
-        return [members[p] for p in _groups(sub_comp)]
+        return [members[p] for p in _groups(sub_comp)], bool(cut.any())
 
     # Work list: (members, split round, first-round group or −1, edges may be re-stepped). Pieces split off are
     # relabelled on their own.
@@ -472,10 +498,10 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         restep = None
         if may_restep and math.isfinite(skip_tol):
             def _restep_component(off, members=members, pieces_box=pieces_box):
-                pieces = _restep(members, off)
-                if pieces is not None:
-                    pieces_box.append(pieces)
-                return pieces is not None
+                out = _restep(members, off)
+                if out is not None:
+                    pieces_box.append(out)
+                return out is not None
 
             restep = _restep_component
         if g >= 0 and g_written[g]:
@@ -504,7 +530,12 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             if ch.reason == "restepped":
                 # labelled again with the new steps (once): pieces the re-propagation separates on their own
                 stats["components_restepped"] = stats.get("components_restepped", 0) + 1
-                for p in pieces_box[0]:
+                pieces, any_cut = pieces_box[0]
+                for p in pieces:
+                    if any_cut and len(p) < options.min_split_component:
+                        # cut off by edges no step explains (decision 0130): a split piece, as outliers' are
+                        left["split_too_small"] += len(p)
+                        continue
                     component[p] = next_id
                     next_id += 1
                     work.append((p, rounds, -1, False))

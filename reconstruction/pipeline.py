@@ -35,6 +35,7 @@ from reconstruction.labelling import (LabelOptions, Labels, SampleLabels, Sample
                                       label_samples, prepare_samples, trace_grid_cell_px)
 from reconstruction.patterns import GridPattern
 from reconstruction._jit import njit
+from reconstruction.placement import FIXED_ILL_POSED_PX
 from reconstruction.rigmodel import UNLABELLED, RigModel, rig_model
 
 
@@ -279,6 +280,15 @@ def few_junctions_warning(n_samples: int, n_junctions: int, junction_step_px: fl
             "angle, or a pattern pitch too fine for this camera); use a coarser pitch or view the surface less obliquely")
 
 
+def judged_margin(margin, label: LabelOptions):
+    """The rig's labelling margin (`placement.LabellingMargin`) judged against the labeller's own threshold: "ill-posed"
+    below min_rms_ratio × noise_floor_px, the miss a runner-up offset needs for `label_epipolar` to accept the best one
+    (decision 0130); with `LabelOptions.ill_posed_at_floor` off, decision 0004's fixed 0.1 px."""
+    if not label.ill_posed_at_floor:
+        return margin.with_floor(FIXED_ILL_POSED_PX, 1.0)
+    return margin.with_floor(label.noise_floor_px, label.min_rms_ratio)
+
+
 def left_out_warning(n_junctions: int, n_labelled: int, left_out: dict, margin) -> str | None:
     """The frame's warning when labelling left out every junction, or most of them as ambiguous (None: no
     warning). Names the main reason; when it is ambiguity and the rig's labelling margin
@@ -309,6 +319,7 @@ def _triangulate(
     procam = model.procam
     H, W = np.shape(image)[:2]
     warnings: list[str] = []
+    margin = judged_margin(model.margin, options.label)
     labels = lab.labels
     M = len(obs.q_junction)
     jl = np.flatnonzero(labels[:, 0] != UNLABELLED)
@@ -399,12 +410,13 @@ def _triangulate(
         w = few_junctions_warning(len(obs.q), M, model.junction_step_cam_px, _step_px(obs))
         if w:
             warnings.append(w)
-        w = left_out_warning(M, n_j, lab.stats.get("junctions_left_out", {}), model.margin)
+        w = left_out_warning(M, n_j, lab.stats.get("junctions_left_out", {}), margin)
         if w:
             warnings.append(w)
-    if model.margin.verdict == "ill-posed":
-        # The same measure and threshold as `rig check` (placement.labelling_margin, decision 0065).
-        warnings.append(f"{model.margin.advice()} [this rig and working volume {options.depth_min_mm:.0f}–{options.depth_max_mm:.0f} mm]")
+    if margin.verdict == "ill-posed":
+        # The same measure and threshold as `rig check` (placement.labelling_margin, decision 0065): below the
+        # runner-up miss the labeller needs with this frame's epipolar floor (decision 0130).
+        warnings.append(f"{margin.advice()} [this rig and working volume {options.depth_min_mm:.0f}–{options.depth_max_mm:.0f} mm]")
     return Reconstruction(
         points_proj=out_p[:n_keep],
         q_cam=out_q[:n_keep],

@@ -7,11 +7,16 @@ outside the working volume. `labelling_margin` measures exactly that: over junct
 depths across the working volume, the smallest distance (projector pixels) between a junction's epipolar line and
 any *other* junction whose triangulated depth also falls inside the working volume. A margin of a few tenths of a
 pixel means that junction noise decides between right and wrong labels: the paper's "extreme sensitivity".
+
+The verdict: "ill-posed" below the miss a label offset's runner-up needs for the default labeller to accept it,
+`decide_px` = `LabelOptions.min_rms_ratio` × the epipolar floor (`LabelOptions.noise_floor_px`: 1.5 × 0.1 px by
+default, decisions 0110 and 0130): a confusable offset closer than that is an error the calibration may leave, and
+no number of junctions decides it; "good" from 1 px; "marginal" in between (sub-pixel junctions decide).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -19,23 +24,40 @@ from calibration.models import ProCam
 from reconstruction.geometry import depth_cam, triangulate_rays
 from reconstruction.patterns import GridPattern
 
+#: the default labeller's defaults (`labelling.LabelOptions`; tests/reconstruction/test_recon_ill_posed_at_floor.py
+#: keeps them equal): the epipolar floor (decision 0110) and the ratio its runner-up must miss by
+EPIPOLAR_FLOOR_PX = 0.1
+MIN_RMS_RATIO = 1.5
+#: the verdict's threshold for "ill-posed": the miss a runner-up needs for the default labeller to accept a label
+#: offset (decision 0130); decision 0004's fixed threshold was 0.1 px (`FIXED_ILL_POSED_PX`)
+DECIDE_PX = MIN_RMS_RATIO * EPIPOLAR_FLOOR_PX
+FIXED_ILL_POSED_PX = 0.1
+
 
 @dataclass(frozen=True)
 class LabellingMargin:
     """margin_px: the smallest epipolar distance of a confusable wrong junction (inf: none within the volume);
-    offset: its label offset (Δi, Δj); depth_mm: the camera-frame depth of the true surface where it happens."""
+    offset: its label offset (Δi, Δj); depth_mm: the camera-frame depth of the true surface where it happens;
+    decide_px: below it the verdict is "ill-posed": the runner-up miss the labeller needs to accept an offset,
+    min_rms_ratio × the epipolar floor (decision 0130; `with_floor`)."""
 
     margin_px: float
     offset: tuple[int, int] | None
     depth_mm: float | None
+    decide_px: float = DECIDE_PX
+
+    def with_floor(self, floor_px: float, min_rms_ratio: float = MIN_RMS_RATIO) -> "LabellingMargin":
+        """The same margin judged against the labeller's own threshold, min_rms_ratio × floor_px (the measure itself
+        does not depend on it)."""
+        return replace(self, decide_px=float(min_rms_ratio) * float(floor_px))
 
     @property
     def verdict(self) -> str:
+        if self.margin_px < self.decide_px:
+            return "ill-posed"
         if self.margin_px >= 1.0:
             return "good"
-        if self.margin_px >= 0.1:
-            return "marginal"
-        return "ill-posed"
+        return "marginal"
 
     def advice(self) -> str:
         """One sentence for `rig check`."""
@@ -47,8 +69,10 @@ class LabellingMargin:
         if self.verdict == "marginal":
             return (f"labelling margin is small ({where}): sub-pixel junctions decide; a tighter [reconstruction] depth "
                     "range, another camera direction or spacing = \"debruijn\" makes it robust")
-        return (f"labelling is ill-posed ({where}): move the camera in another direction from the projector (see "
-                "benchmarks/results/sweep.md), change the pattern angles, or use spacing = \"debruijn\"")
+        return (f"labelling is ill-posed ({where}, less than the {self.decide_px:.2f} px by which a runner-up must miss for "
+                "the labeller to tell it from calibration error): move the camera in another direction from the projector (see "
+                "benchmarks/results/sweep.md), change the pattern angles, tighten the [reconstruction] depth range, or use "
+                "spacing = \"debruijn\"")
 
 
 def labelling_margin(
@@ -59,12 +83,14 @@ def labelling_margin(
     max_offset: int = 3,
     junction_samples: int = 9,
     depth_samples: int = 7,
+    decide_px: float = DECIDE_PX,
 ) -> LabellingMargin:
     """The labelling margin (see the module docstring). Pure geometry from the calibration; no image needed.
 
     Junctions: a `junction_samples`² subset of the pattern's; depths: `depth_samples` values spread over
     `depth_range_mm` (camera-frame z, mm); wrong offsets: the neighbouring labels, every (Δi, Δj) with
-    |Δi|, |Δj| ≤ `max_offset` (larger offsets are also caught by the pattern's extent in practice).
+    |Δi|, |Δj| ≤ `max_offset` (larger offsets are also caught by the pattern's extent in practice). decide_px: the
+    verdict's "ill-posed" threshold (`LabellingMargin.decide_px`; `rig check` passes its floor's).
     """
     idx = pattern.indices
     pick = idx[np.linspace(0, len(idx) - 1, min(junction_samples, len(idx))).round().astype(int)]
@@ -73,7 +99,7 @@ def labelling_margin(
     xy_j = proj.pixels_to_normalised(pattern.junction_uv(ii, jj))
     # Surface points along each junction's projector ray, at depths across the working volume.
     lo, hi = depth_range_mm
-    best = LabellingMargin(float("inf"), None, None)
+    best = LabellingMargin(float("inf"), None, None, float(decide_px))
     t = procam.t_proj_cam
     offs = np.array([(a, b) for a in range(-max_offset, max_offset + 1) for b in range(-max_offset, max_offset + 1) if (a, b) != (0, 0)])
     for z_cam in np.linspace(lo, hi, depth_samples):
@@ -108,5 +134,5 @@ def labelling_margin(
             continue
         k = np.flatnonzero(confusable)[np.argmin(d_px[confusable])]
         if d_px[k] < best.margin_px:
-            best = LabellingMargin(float(d_px[k]), (int(offs[cols[k], 0]), int(offs[cols[k], 1])), float(z_cam))
+            best = LabellingMargin(float(d_px[k]), (int(offs[cols[k], 0]), int(offs[cols[k], 1])), float(z_cam), float(decide_px))
     return best

@@ -13,9 +13,13 @@ def register(app: typer.Typer) -> None:
 
 def check(config: Path = typer.Option(None, "--config", "-c", help="rig.toml (default: the built-in simulated rig)")) -> None:
     """Check the rig end to end: projector handshake, one trigger, one frame, calibration and placement."""
+    from dataclasses import replace
+
     from calibration.errors import ConfigError
     from rig.acquire import grab_verified
     from rig.config import load_config
+    from reconstruction.labelling import LabelOptions
+    from reconstruction.pipeline import judged_margin
     from reconstruction.placement import labelling_margin
     from rig.registry import epipolar_floor_px, open_rig, working_volume
 
@@ -42,9 +46,10 @@ def check(config: Path = typer.Option(None, "--config", "-c", help="rig.toml (de
         typer.echo(f"calibration: {rig.calibration_source}; baseline {procam.baseline_mm:.1f} mm")
         rig.projector.stop()
     volume = working_volume(cfg)
-    margin = labelling_margin(procam, cfg.pattern, depth_range_mm=volume)
-    typer.echo(f"placement: working volume {volume[0]:.0f}–{volume[1]:.0f} mm; {margin.advice()}")
     floor = epipolar_floor_px(cfg)
+    # "ill-posed" below the runner-up miss the labeller needs with this floor (decision 0130)
+    margin = judged_margin(labelling_margin(procam, cfg.pattern, depth_range_mm=volume), replace(LabelOptions(), noise_floor_px=floor))
+    typer.echo(f"placement: working volume {volume[0]:.0f}–{volume[1]:.0f} mm; {margin.advice()}")
     typer.echo(
         f"labelling: a label offset wins only where the runner-up misses its epipolar lines by more than "
         f"{1.5 * floor:.2f} projector px RMS (epipolar floor {floor:.2f} px, decision 0110)"

@@ -207,8 +207,10 @@ def _old_seed_one_sided(
 def _frame(scene):
     model = rig_model(scene.procam, scene.pattern, scene.depth_range_mm)
     obs = extract_grid(scene.image, model)
-    # decision 0108's residual clusters came after 7fa47dd: the loop of that commit does not have them
-    opts = LabelOptions(depth_min_mm=scene.depth_range_mm[0], depth_max_mm=scene.depth_range_mm[1], residual_clusters=False)
+    # decision 0108's residual clusters and decision 0130's cut of misfit edges came after 7fa47dd: the loop of that
+    # commit does not have them
+    opts = LabelOptions(depth_min_mm=scene.depth_range_mm[0], depth_max_mm=scene.depth_range_mm[1], residual_clusters=False,
+                        cut_misfit_edges=False)
     return model, obs, opts
 
 
