@@ -136,3 +136,22 @@ def test_a_well_posed_scene_is_unchanged(small_scene):
     assert on.stats["samples_imprecise"] == 0
     assert np.array_equal(on.points_proj, off.points_proj) and np.array_equal(on.q_cam, off.q_cam)
     assert np.array_equal(on.depth_cam, off.depth_cam, equal_nan=True)
+
+
+def test_the_compiled_flags_are_the_numpy_prediction():
+    rng = np.random.default_rng(0)
+    n = 4000
+    p = np.column_stack([rng.uniform(-100, 100, n), rng.uniform(-100, 100, n), rng.uniform(800, 1000, n)]).astype(np.float32)
+    fam = rng.integers(0, 3, n).astype(np.int8)
+    procam = _procam((200.0, 10.0, 30.0))
+    K, t = procam.projector.K, procam.t_proj_cam
+    n1, n2 = 0.03, -2.0
+    sel = fam > 0
+    err = predicted_error(K, t, np.where(fam[sel] == 1, n1, n2), p[sel].astype(np.float64), 0.1)
+    e = np.sort(err)
+    lim = 50 * float(e[len(e) // 2] + e[len(e) // 2 + 1])  # between two predictions: no rounding at the limit
+    got = imprecise_samples(K, t, n1, n2, p, fam, 0.1, SheetPrecisionOptions(max_error_pct=lim))
+    want = np.zeros(n, bool)
+    want[sel] = ~(err <= lim / 100)
+    assert 0 < want.sum() < sel.sum()
+    assert np.array_equal(got, want)
