@@ -89,16 +89,20 @@ def frame_noise_px(junction_residual: np.ndarray, floor_px: float, *, min_juncti
 
 @njit
 def _k_imprecise(K, t, n1, n2, p, family, delta_px, limit, out):
-    """`predicted_error` > limit (fraction) for every row of p (N, 3) with family > 0 (slope n1 for 1, n2 for 2),
-    the same expressions in one pass (numpy's error model: a line exactly along the epipolar line gives inf, and a
-    NaN error is flagged too); writes out (N,) bool, returns how many are flagged."""
+    """`predicted_error` > limit (fraction) for every row of p (N, 3) with family > 0 (slope n1 for 1, n2 for 2);
+    writes out (N,) bool, returns how many are flagged. The same quantities compared squared and multiplied out
+    (no square root or division but x/z, y/z): err ≤ limit ⟺ δ²·|e_dir|²·(1 + s²)·z²·|d|² ≤
+    limit²·|g|²·(e_dir × line)²·|p|², with d = p − t not normalised and g its projection's derivative times z·|d|. A
+    line exactly along the epipolar line (err = inf), and anything not finite, is flagged."""
     fx, skew, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
     t0, t1, t2 = t[0], t[1], t[2]
     e0 = K[0, 0] * t0 + K[0, 1] * t1 + K[0, 2] * t2
     e1 = K[1, 0] * t0 + K[1, 1] * t1 + K[1, 2] * t2
     e2 = K[2, 0] * t0 + K[2, 1] * t1 + K[2, 2] * t2
-    h1 = math.sqrt(1.0 + n1 * n1)
-    h2 = math.sqrt(1.0 + n2 * n2)
+    h1 = 1.0 + n1 * n1
+    h2 = 1.0 + n2 * n2
+    d2l = delta_px * delta_px
+    l2 = limit * limit
     n_bad = 0
     for a in range(p.shape[0]):
         f = family[a]
@@ -116,20 +120,17 @@ def _k_imprecise(K, t, n1, n2, p, family, delta_px, limit, out):
         v = fy * y + cy
         du = e0 - u * e2
         dv = e1 - v * e2
-        sin_t = abs(du * s - dv) / (math.sqrt(du * du + dv * dv) * hs)
+        c = du * s - dv
         d0 = px - t0
         d1 = py - t1
         d2 = pz - t2
-        dn = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        d0 /= dn
-        d1 /= dn
-        d2 /= dn
-        gx = (d0 - x * d2) / pz
-        gy = (d1 - y * d2) / pz
+        gx = d0 - x * d2
+        gy = d1 - y * d2
         g_u = fx * gx + skew * gy
         g_v = fy * gy
-        err = delta_px / (math.sqrt(g_u * g_u + g_v * g_v) * sin_t * math.sqrt(px * px + py * py + pz * pz))
-        bad = not (err <= limit)
+        lhs = d2l * (du * du + dv * dv) * hs * (pz * pz) * (d0 * d0 + d1 * d1 + d2 * d2)
+        rhs = l2 * (g_u * g_u + g_v * g_v) * (c * c) * (px * px + py * py + pz * pz)
+        bad = not (lhs <= rhs)
         out[a] = bad
         n_bad += bad
     return n_bad
