@@ -7,10 +7,10 @@ by δ / sin θ along the epipolar line, and the point along its camera ray by
 
     σ_z = δ · G / sin θ,      G = |dλ / dq_proj|: mm along the camera ray per projector px along the epipolar line.
 
-A junction is the crossing of two lines: its depth does not depend on one line's angle. On the rigs that
-`placement.labelling_margin` calls ill-posed, one family's lines run within a few degrees of the epipolar lines
-(sin θ 0.001–0.08 on the unseen seeds 116 and 126): their labels are right but their points are 10–300 times less
-precise than the other family's, and those are the points more than 1 % off.
+A junction is the crossing of two lines: its depth does not depend on one line's angle. On the unseen seeds 116
+and 126 (rigs warned ill-posed) one family's lines run within a few degrees of the epipolar lines (sin θ
+0.001–0.08): their labels are right, but their points' median error is 60–70 times the other family's, and they
+are nearly all of the points more than 1 % off.
 
 `imprecise_samples` predicts σ_z / |p| for every sample point with δ = max(σ̂, σ0): σ̂ the robust scale of the
 frame's labelled junctions' epipolar residuals (their position noise in projector px), σ0 the labeller's
