@@ -804,7 +804,8 @@ class TraceOptions:
         samples again (decision 0085); observations without `segment_linked` are linked again.
     piece_seeds: label a piece that a crossing with a labelled line names at one end when the crossing at
         its other end, on the piece's light sheet, lands on the next line of the other family
-        (`reconstruction.piece_seeds`, decision 0089).
+        (`reconstruction.piece_seeds`, decision 0089). Off by default since decision 0131: on the unseen scenes it
+        adds a few dozen points per frame, and on some (seeds 134, 147, 166) most of those are a line off.
     piece_junctions: build junctions at the crossings of pieces where extraction found none and label them as
         found ones (`reconstruction.piece_junctions`, decision 0092).
     surface_labels: label a piece whose index the labelled surface around it predicts: a plane fit of the
@@ -853,7 +854,7 @@ class TraceOptions:
     cross_rounds_after: int = 1
     far_end_check: bool = True
     from_segments: bool = True
-    piece_seeds: bool = True
+    piece_seeds: bool = False  # decision 0131: off (on unseen scenes its few points are often wrong; decision 0089 measured it small)
     piece_junctions: bool = True
     surface_labels: bool = True
     surface_rounds: int = 3

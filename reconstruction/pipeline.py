@@ -37,6 +37,7 @@ from reconstruction.patterns import GridPattern
 from reconstruction._jit import njit
 from reconstruction.placement import FIXED_ILL_POSED_PX
 from reconstruction.rigmodel import UNLABELLED, RigModel, rig_model
+from reconstruction.sheet_precision import SheetPrecisionOptions, frame_noise_px, imprecise_samples
 
 
 @dataclass(frozen=True)
@@ -59,6 +60,7 @@ class ReconstructOptions:
     crossing: CrossingFillOptions = CrossingFillOptions()
     one_sided: OneSidedFillOptions = OneSidedFillOptions()  # decision 0099: a labelled end to its crossing (with `crossing` on)
     border: BorderFillOptions = BorderFillOptions()  # decision 0104: a labelled end to the image border (with `crossing` on)
+    sheet_precision: SheetPrecisionOptions = SheetPrecisionOptions()  # decision 0131: samples on sheets along the epipolar lines
 
     def __post_init__(self) -> None:
         if self.labeller not in ("epipolar", "paper"):
@@ -364,6 +366,11 @@ def _triangulate(
             break
         p_given = _sample_points(model, q_s, index_s, family_s)
         depth.fill(np.nan)
+    n_imprecise = 0
+    if options.labeller == "epipolar" and options.sheet_precision.enabled and n_keep > n_keep_j:
+        # decision 0131: sample points whose sheet runs so nearly along the epipolar lines that their depth is
+        # not known to the precision asked for are left out (the paper labeller's output stays the paper's method)
+        n_keep, n_imprecise = _drop_imprecise(model, lab, options, depth, out_p, out_q, out_f, out_l, out_r, n_keep, n_keep_j)
 
     # Overlay segments: from each segment's fit, between its extreme samples.
     segs, seg_lab = _segment_overlay(obs, lab)
@@ -400,6 +407,7 @@ def _triangulate(
         "samples_crossing_filled": int(cp.stats["samples_crossing_filled"]) if cp is not None else 0,
         "samples_one_sided_filled": int(cp.stats.get("samples_one_sided_filled", 0)) if cp is not None else 0,
         "samples_border_filled": int(cp.stats.get("samples_border_filled", 0)) if cp is not None else 0,
+        "samples_imprecise": int(n_imprecise),
         "traces_conflicting": int(sample_stats.get("traces_conflicting", 0)),
         "components_split": int(lab.stats.get("components_split", 0)),
         "junctions_residual_clusters": int(lab.stats.get("junctions_residual_clusters", 0)),
@@ -431,6 +439,39 @@ def _triangulate(
         stats=stats,
         warnings=warnings,
     )
+
+
+def _drop_imprecise(model: RigModel, lab: Labels, options: ReconstructOptions, depth, out_p, out_q, out_f, out_l, out_r,
+                    n_keep: int, n_keep_j: int) -> tuple[int, int]:
+    """Decision 0131: leave out the sample points (rows n_keep_j … n_keep of the outputs) that
+    `sheet_precision.imprecise_samples` flags, with δ = max(the labelled junctions' residual scale, the labeller's
+    noise floor); the kept rows move up in order and the depth map's pixels of the dropped points are cleared
+    (or take the last kept point on that pixel, as the kernel writes them). Returns (kept rows, dropped rows)."""
+    pat = model.pattern
+    delta = frame_noise_px(lab.residual, options.label.noise_floor_px)
+    bad = imprecise_samples(np.asarray(model.procam.projector.K, np.float64), model.procam.t_proj_cam, float(pat.n1), float(pat.n2),
+                            out_p[n_keep_j:n_keep], out_f[n_keep_j:n_keep], delta, options.sheet_precision)
+    n_bad = int(bad.sum())
+    if n_bad == 0:
+        return n_keep, 0
+    H, W = depth.shape
+    q = out_q[:n_keep].astype(np.float64)
+    pix = np.clip(np.rint(q[:, 1]), 0, H - 1).astype(np.intp) * W + np.clip(np.rint(q[:, 0]), 0, W - 1).astype(np.intp)
+    drop = np.zeros(n_keep, np.bool_)
+    drop[n_keep_j:] = bad
+    flat = depth.reshape(-1)
+    hit = np.zeros(H * W, np.bool_)
+    hit[pix[drop]] = True
+    flat[pix[drop]] = np.nan
+    re = np.flatnonzero(~drop & hit[pix])  # kept points on a cleared pixel: written again in order (the last wins)
+    if len(re):
+        R, t = model.procam.R_proj_cam, model.procam.t_proj_cam
+        z = (out_p[re].astype(np.float64) - t) @ R[:, 2]
+        flat[pix[re]] = z
+    keep = np.flatnonzero(~drop)
+    for a in (out_p, out_q, out_f, out_l, out_r):
+        a[: len(keep)] = a[keep]
+    return len(keep), n_bad
 
 
 _EMPTY_Q = np.zeros((0, 2))
