@@ -64,6 +64,13 @@ class ReconstructionConfig(BaseModel):
         description="smallest epipolar error (projector px RMS) the labeller's ambiguity test assumes; None: the "
         "calibration file's stereo RMS where it is larger than 0.1, else 0.1 (decision 0110)",
     )
+    max_sample_error_pct: float = Field(
+        0.5,
+        gt=0,
+        description="line-sample points whose predicted depth error (their line nearly along the epipolar lines) "
+        "exceeds this % of their distance from the projector are left out; a large value (100) keeps them all "
+        "(decision 0131)",
+    )
 
     @model_validator(mode="after")
     def _range(self) -> "ReconstructionConfig":
@@ -216,4 +223,8 @@ labeller = "epipolar"   # "epipolar" (default: whole components) or "paper" (thr
 # the runner-up offset misses its epipolar lines clearly more than that. Default: the calibration's stereo RMS (from
 # `rig calibrate`) where it is larger than 0.1 px, else 0.1 px. Raise it if scans show whole surfaces shifted by a line.
 # epipolar_floor_px = 0.3
+# Line samples on a line that runs nearly along the epipolar lines have imprecise depths; those whose predicted error
+# (from the epipolar floor above or the frame's junction noise, whichever is larger) exceeds this % of their distance
+# are left out. A larger value keeps more of them (100 keeps them all).
+# max_sample_error_pct = 0.5
 '''

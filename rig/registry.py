@@ -95,14 +95,17 @@ def epipolar_floor_px(cfg: RigConfig) -> float:
 
 
 def reconstruct_options(cfg: RigConfig, *, labeller: str | None = None):
-    """The ReconstructOptions rig.toml asks for: labeller (or the override), working volume, epipolar floor."""
+    """The ReconstructOptions rig.toml asks for: labeller (or the override), working volume, epipolar floor, the
+    sample points' precision limit (decision 0131)."""
     import dataclasses
 
     from reconstruction.pipeline import ReconstructOptions
 
     depth_min_mm, depth_max_mm = working_volume(cfg)
     options = ReconstructOptions(labeller=labeller or cfg.reconstruction.labeller, depth_min_mm=depth_min_mm, depth_max_mm=depth_max_mm)
-    return dataclasses.replace(options, label=dataclasses.replace(options.label, noise_floor_px=epipolar_floor_px(cfg)))
+    sheet = dataclasses.replace(options.sheet_precision, max_error_pct=cfg.reconstruction.max_sample_error_pct)
+    return dataclasses.replace(options, label=dataclasses.replace(options.label, noise_floor_px=epipolar_floor_px(cfg)),
+                               sheet_precision=sheet)
 
 
 def render_options(cfg: RigConfig):

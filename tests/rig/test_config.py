@@ -86,3 +86,15 @@ def test_rig_init_and_config_show(tmp_path, capsys):
     shown = capsys.readouterr().out
     assert f"from {path.resolve()}" in shown
     assert config_from_dict(tomllib.loads(shown.split("\n", 1)[1])) == RigConfig()
+
+
+def test_max_sample_error_reaches_the_reconstruction_options(tmp_path):
+    """Decision 0131's precision limit: rig.toml's value reaches SheetPrecisionOptions; zero or below is refused."""
+    from rig.registry import reconstruct_options
+
+    assert reconstruct_options(RigConfig()).sheet_precision.max_error_pct == 0.5
+    cfg = config_from_dict(tomllib.loads("[reconstruction]\nmax_sample_error_pct = 2.0\n"))
+    assert reconstruct_options(cfg).sheet_precision.max_error_pct == 2.0
+    assert reconstruct_options(cfg).sheet_precision.enabled
+    with pytest.raises(ConfigError, match="max_sample_error_pct"):
+        config_from_dict(tomllib.loads("[reconstruction]\nmax_sample_error_pct = 0\n"))
