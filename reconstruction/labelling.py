@@ -423,24 +423,23 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     if options.skip_edges and bool((g_ok.astype(np.bool_) & ~g_written.astype(np.bool_)).any()):
         skip_tol = _edge_jump_tol(model, lines, labels, comp, e_arrays[0], e_arrays[1], keep, options)
 
+    restep_pos = np.full(M, -1, np.intp)  # `component_edge_steps`' work space
+
     def _restep(members, off):
         """Decision 0125: give the component's edges the steps the epipolar geometry names under offset off; the
         re-propagated pieces, or None when no edge changes."""
         nonlocal delta_all, edges
-        pos_m = np.full(M, -1, np.intp)
-        pos_m[members] = np.arange(len(members))
-        sel = np.flatnonzero(keep & (pos_m[edges_all[:, 0]] >= 0) & (pos_m[edges_all[:, 1]] >= 0))
+        # the component's kept edges, their ends' positions and their steps: one compiled call (decision 0127)
+        off = np.asarray(off, np.int64)
+        sel, pa, pb, k = _ak.component_edge_steps(np.ascontiguousarray(members, np.intp), restep_pos, keep, edges_all, delta_all, rel,
+                                                  int(off[0]), int(off[1]), lines, model.xy_junction, int(model.index_min),
+                                                  int(model.index_max), float(model.fx_proj), int(options.skip_max_steps), float(skip_tol))
         if len(sel) == 0:
             return None
-        sub_e = pos_m[edges_all[sel]]
-        k = _ak.edge_steps(np.ascontiguousarray(sub_e[:, 0]), np.ascontiguousarray(sub_e[:, 1]),
-                           np.ascontiguousarray(delta_all[sel, 0]), np.ascontiguousarray(delta_all[sel, 1]),
-                           np.ascontiguousarray(rel[members] + np.asarray(off, np.int64)), np.ascontiguousarray(lines[members]),
-                           model.xy_junction, int(model.index_min), int(model.index_max), float(model.fx_proj),
-                           int(options.skip_max_steps), float(skip_tol))
         changed = k != 1
         if not changed.any():
             return None
+        sub_e = np.column_stack([pa, pb])
         if delta_all is obs_delta:
             delta_all = delta_all.copy()
         delta_all[sel[changed]] *= k[changed, None]

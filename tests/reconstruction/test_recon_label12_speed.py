@@ -82,3 +82,63 @@ def test_sorted_with_keys_equals_the_numpy_sort_path():
         if n >= 2:
             fast += bool(CF._k_sorted_keys(sel, key, int(n - 1).bit_length())[1])
     assert fast >= 30
+
+
+def _old_restep_steps(members, M, keep, edges_all, delta_all, rel, off, lines, xy_junction, index_min, index_max, fx, k_max, tol):
+    """`label_epipolar`'s `_restep` before decision 0127, up to `edge_steps` (NumPy gathers)."""
+    from reconstruction import _ambiguity_kernels as AK
+
+    pos_m = np.full(M, -1, np.intp)
+    pos_m[members] = np.arange(len(members))
+    sel = np.flatnonzero(keep & (pos_m[edges_all[:, 0]] >= 0) & (pos_m[edges_all[:, 1]] >= 0))
+    if len(sel) == 0:
+        return sel, np.zeros((0, 2), np.intp), None
+    sub_e = pos_m[edges_all[sel]]
+    k = AK.edge_steps(np.ascontiguousarray(sub_e[:, 0]), np.ascontiguousarray(sub_e[:, 1]),
+                      np.ascontiguousarray(delta_all[sel, 0]), np.ascontiguousarray(delta_all[sel, 1]),
+                      np.ascontiguousarray(rel[members] + np.asarray(off, np.int64)), np.ascontiguousarray(lines[members]),
+                      xy_junction, index_min, index_max, fx, k_max, tol)
+    return sel, sub_e, k
+
+
+def test_component_edge_steps_equals_the_numpy_gathers():
+    """`_ambiguity_kernels.component_edge_steps` against the former NumPy code of `_restep` on random graphs: the same
+    edges, the same end positions and the same steps, some of them other than 1; pos left all −1."""
+    from reconstruction import _ambiguity_kernels as AK
+
+    rng = np.random.default_rng(1271)
+    L, index_min = 41, -20
+    g = np.arange(L) + index_min
+    # a pattern's junctions in normalised projector coordinates (slopes 0.3 and −1.2, pitch 0.02)
+    n1, n2, p = 0.3, -1.2, 0.02
+    I, J = np.meshgrid(g, g, indexing="ij")
+    xy_junction = np.ascontiguousarray(np.stack([(I - J) * p / (n2 - n1), (n2 * I - n1 * J) * p / (n2 - n1)], axis=-1))
+    changed = 0
+    for trial in range(60):
+        M = int(rng.integers(2, 300))
+        E = int(rng.integers(0, 3 * M))
+        edges = rng.integers(0, M, (E, 2)).astype(np.int64)
+        delta = rng.choice(np.array([[1, 0], [0, 1], [-1, 0], [0, -1], [1, 1]]), E).astype(np.int64)
+        keep = rng.random(E) < 0.8
+        rel = rng.integers(-15, 15, (M, 2)).astype(np.int64)
+        # epipolar lines through each member's junction (some a line off: the steps change)
+        lab = np.clip(rel, index_min, index_min + L - 1)
+        pt = xy_junction[lab[:, 0] - index_min, lab[:, 1] - index_min]
+        ang = rng.uniform(0, np.pi, M)
+        lines = np.stack([np.sin(ang), -np.cos(ang), -(np.sin(ang) * pt[:, 0] - np.cos(ang) * pt[:, 1])], axis=1)
+        lines[:, 2] += rng.normal(0, 1e-4, M)
+        members = np.sort(rng.permutation(M)[: int(rng.integers(0, M + 1))]).astype(np.intp)
+        off = rng.integers(-3, 4, 2).astype(np.int64)
+        args = (xy_junction, index_min, index_min + L - 1, 1000.0, 6, float(rng.choice([0.05, 0.5, 3.0])))
+        sel0, sub0, k0 = _old_restep_steps(members, M, keep, edges, delta, rel, off, lines, *args)
+        pos = np.full(M, -1, np.intp)
+        sel1, pa, pb, k1 = AK.component_edge_steps(members, pos, keep, edges, delta, rel, int(off[0]), int(off[1]), lines, *args)
+        assert (pos == -1).all()
+        assert np.array_equal(sel0, sel1)
+        assert np.array_equal(sub0[:, 0], pa) and np.array_equal(sub0[:, 1], pb)
+        if k0 is None:
+            assert len(k1) == 0
+        else:
+            assert np.array_equal(k0, k1)
+            changed += int((k1 != 1).sum())
+    assert changed > 0
