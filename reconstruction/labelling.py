@@ -233,13 +233,29 @@ def _choose_offset(
     # outliers below) and their scores (`_label_kernels.offset_scores`); the walk down the ranking (its 16
     # best) until two offsets put the surface inside the working volume (`offset_depth_walk`, decision 0078;
     # formerly chunks of 4 through `offset_points` and NumPy's `depth_cam`, with the same results); the best
-    # one's residuals (`offset_residuals`): one compiled call (`offset_choice`, decision 0087).
-    status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside = _k.offset_choice(
-        rel, ln, xy_cam, model.xy_junction, int(model.index_min), int(model.index_max), float(model.fx_proj),
+    # one's residuals (`offset_residuals`): one compiled call (`offset_choice`, decision 0087), with the candidate
+    # scan by blocks of the pattern's junctions (`offset_choice_b`, as `offset_choice_groups`; decisions 0124, 0127).
+    status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside = _k.offset_choice_b(
+        rel, ln, xy_cam, model.xy_junction, _junction_blocks(model.xy_junction), _k._BLOCK, int(model.index_min), int(model.index_max),
+        float(model.fx_proj),
         int(options.candidate_refs), float(options.candidate_band_px), float(options.min_inside_fraction), float(cap2),
         model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm))
     return _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside,
                       members=members, graph=graph, retry_limit_px=retry_limit_px, restep=restep)
+
+
+_BLOCKS: dict = {}  # id(xy_junction) -> (xy_junction, its blocks)
+
+
+def _junction_blocks(xy_junction: np.ndarray) -> np.ndarray:
+    """`_label_kernels.junction_blocks(xy_junction, _BLOCK)`, kept per pattern table (a rig model's `xy_junction`,
+    read-only) so that `_choose_offset` does not bound the blocks again on every call."""
+    hit = _BLOCKS.get(id(xy_junction))
+    if hit is None or hit[0] is not xy_junction:
+        if len(_BLOCKS) >= 16:
+            _BLOCKS.clear()
+        hit = _BLOCKS[id(xy_junction)] = (xy_junction, _k.junction_blocks(xy_junction, _k._BLOCK))
+    return hit[1]
 
 
 class _Graph:

@@ -142,3 +142,53 @@ def test_component_edge_steps_equals_the_numpy_gathers():
             assert np.array_equal(k0, k1)
             changed += int((k1 != 1).sum())
     assert changed > 0
+
+
+def test_choose_offset_block_path_equals_offset_choice():
+    """`_choose_offset` now scores by blocks (`offset_choice_b` on `labelling._junction_blocks`): every output equal to
+    `offset_choice`'s (the former path) on random components of two pattern sizes, with missing pattern junctions;
+    accepted, no-admissible and out-of-depth outcomes all occur; the blocks are kept per table and rebuilt for another."""
+    from reconstruction import _label_kernels as K
+    from reconstruction import labelling as LB
+
+    rng = np.random.default_rng(1272)
+    outcomes = set()
+    for L in (41, 81):
+        imin = -(L // 2)
+        imax = imin + L - 1
+        ii, jj = np.meshgrid(np.arange(L), np.arange(L), indexing="ij")
+        s = 1.0 / L
+        xy = np.ascontiguousarray(np.stack([s * (ii - jj) + 1e-3 * s * rng.normal(size=ii.shape),
+                                            1.5 * s * (ii + jj) - 1.5 + 1e-3 * s * rng.normal(size=ii.shape)], axis=-1))
+        xy[2, 3] = np.nan
+        xy[8:16, 16:24] = np.nan
+        blocks = LB._junction_blocks(xy)
+        assert LB._junction_blocks(xy) is blocks
+        np.testing.assert_array_equal(blocks, K.junction_blocks(xy, K._BLOCK))
+        R = np.eye(3)
+        t = np.array([100.0, 0.0, 0.0])
+        for trial in range(40):
+            m = int(rng.choice([1, 3, 20, 150, 500]))
+            spread = L if trial % 5 == 4 else 8  # wider than the pattern: no admissible offset
+            rel = rng.integers(-spread, spread + 1, (m, 2)).astype(np.int64)
+            true = rel + rng.integers(-3, 4, 2)
+            p = xy[np.clip(true[:, 0] - imin, 0, L - 1), np.clip(true[:, 1] - imin, 0, L - 1)]
+            p = np.where(np.isfinite(p), p, 0.0)
+            ang = rng.uniform(0, np.pi, m)
+            ln = np.column_stack([np.sin(ang), -np.cos(ang), -(np.sin(ang) * p[:, 0] - np.cos(ang) * p[:, 1])])
+            ln[:, 2] += rng.normal(0, 2e-4, m)
+            ln = np.ascontiguousarray(ln)
+            xy_cam = np.ascontiguousarray(rng.normal(0, 0.2, (m, 2)))
+            z_max = float(rng.choice([1e6, 50.0]))
+            args = (imin, imax, 800.0, 5, 4.0, 0.9, 1.0, R, t, 1.0, z_max)
+            ref = K.offset_choice(rel, ln, xy_cam, xy, *args)
+            got = K.offset_choice_b(rel, ln, xy_cam, xy, LB._junction_blocks(xy), K._BLOCK, *args)
+            assert len(ref) == len(got)
+            for x, y in zip(ref, got):
+                if isinstance(x, np.ndarray):
+                    assert x.dtype == y.dtype
+                    np.testing.assert_array_equal(x, y)
+                else:
+                    assert x == y or (x != x and y != y)
+            outcomes.add("status" if ref[0] != 0 else ("ok" if ref[2] else "depth"))
+    assert outcomes == {"status", "ok", "depth"}
