@@ -420,10 +420,11 @@ def _k_sorted_keys(sel, key, b):
 
 @njit
 def _k_sort_u64(v):
-    """np.sort(v) for unsigned integers (decision 0127): a counting sort on the values' leading bits into about one
-    bucket per value (each bucket a contiguous range of values, the buckets in increasing order), then each bucket
-    sorted on its own: an insertion sort up to 16 values, numba's np.sort above. A sorted array of integers is
-    unique, so it is np.sort's whatever either algorithm does with equal values."""
+    """np.sort(v) for unsigned integers (decision 0127): a counting sort on the values' leading bits into about two
+    buckets per value (each bucket a contiguous range of values, the buckets in increasing order; the keys of
+    `_k_order` cluster by line, so most buckets stay empty), then each bucket sorted on its own: an insertion sort
+    up to 32 values, numba's np.sort above. A sorted array of integers is unique, so it is np.sort's whatever either
+    algorithm does with equal values."""
     n = v.shape[0]
     out = np.empty(n, np.uint64)
     if n == 0:
@@ -436,8 +437,8 @@ def _k_sort_u64(v):
             lo = x
         if x > hi:
             hi = x
-    nbits = 1
-    while (1 << (nbits + 1)) <= n:
+    nbits = 2
+    while (1 << nbits) <= n:
         nbits += 1
     sb = 0  # bits of hi − lo
     s = hi - lo
@@ -445,7 +446,7 @@ def _k_sort_u64(v):
         sb += 1
         s >>= np.uint64(1)
     shift = np.uint64(sb - nbits if sb > nbits else 0)
-    nb = int((hi - lo) >> shift) + 1  # at most 2^nbits ≤ n
+    nb = int((hi - lo) >> shift) + 1  # at most 2^nbits ≤ 2n
     start = np.zeros(nb + 1, np.intp)
     for i in range(n):
         start[int((v[i] - lo) >> shift) + 1] += 1
@@ -461,7 +462,7 @@ def _k_sort_u64(v):
         e = start[k + 1]
         if e - a <= 1:
             continue
-        if e - a > 16:
+        if e - a > 32:
             out[a:e] = np.sort(out[a:e])
             continue
         for i in range(a + 1, e):
