@@ -386,9 +386,9 @@ def _k_merge(order0, key0, order1, key1):
 
 
 def _sorted_by_key(sel: np.ndarray, key: np.ndarray) -> np.ndarray:
-    """sel[np.argsort(key)], by NumPy's sort of integers instead of its argsort (decision 0090: ~0.2 against
-    ~0.5 ms for 25 000 samples). Each key is mapped to an unsigned integer of the same order, its lowest b
-    bits replaced by its position (b bits hold len(key) − 1); when the remaining high bits differ between
+    """sel[np.argsort(key)], by a sort of integers instead of an argsort (decision 0090: NumPy's sort; since decision
+    0127 `_k_sort_u64`, a bucket sort in numba). Each key is mapped to an unsigned integer of the same order, its
+    lowest b bits replaced by its position (b bits hold len(key) − 1); when the remaining high bits differ between
     every two neighbours of the sorted list, the keys are distinct and that is the one order by key, the
     argsort's; else (keys within ~2^b ulp of each other, or a key ≤ 0) the argsort itself."""
     return _sorted_with_keys(sel, key)[0]
