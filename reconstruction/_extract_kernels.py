@@ -100,7 +100,7 @@ _STEGER_BLOCK = 512  # candidates per block of the ridge walk's vectorised Hessi
 
 
 @njit(error_model="numpy")
-def steger_block(nb, V, thr, neg_aniso, neg_cross, O):
+def steger_block(nb, V, thr, neg_aniso, neg_cross, thr_cross, O):
     """The Hessian, its eigenvalues, the normal and Steger's offset of `nb` candidates, branch-free so that
     LLVM vectorises the loop (two arrays only: with more, its runtime alias checks make it give up).
 
@@ -146,19 +146,20 @@ def steger_block(nb, V, thr, neg_aniso, neg_cross, O):
         O[3, j] = ey
         O[4, j] = strength
         O[5, j] = -lam2
-        O[6, j] = _F32_ONE if ((lam2 < neg_cross * strength) & (-lam2 > thr)) else _F32_ZERO
+        O[6, j] = _F32_ONE if ((lam2 < neg_cross * strength) & (-lam2 > thr_cross)) else _F32_ZERO
         keep = (strength > thr) & (lam2 > lim) & (abs(dx) <= _F32_HALF) & (abs(dy) <= _F32_HALF)
         O[7, j] = _F32_ONE if keep else _F32_ZERO
 
 
 @njit(error_model="numpy")
-def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross):
+def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross, thr_cross=-1.0):
     """Ridge candidates, Steger samples and crossing candidates of the smoothed image, in one walk.
 
     G: (H, W) float32 C-contiguous working image. thr_lap, thr, neg_aniso, neg_cross: float32 — a candidate's
     discrete Laplacian must be below `thr_lap` (−0.5·thr), a line sample's strength −λ1 above
     `thr`, λ2 above `neg_aniso`·strength (neg_aniso = −anisotropy); a crossing candidate has λ2 below
-    `neg_cross`·strength (neg_cross = −crossing anisotropy, at most neg_aniso) and −λ2 above `thr` (a pixel
+    `neg_cross`·strength (neg_cross = −crossing anisotropy, at most neg_aniso) and −λ2 above `thr_cross`
+    (float32; omitted or negative: `thr`; decision 0129 sets it from the noise of one eigenvalue) (a pixel
     can be both a line sample and a crossing candidate when neg_cross > neg_aniso). The Laplacian is summed as OpenCV's 3×3 filter does (up, left, −4·centre, right,
     down; bit-identical to `cv2.Laplacian(ksize=1)` on float32), border pixels are never candidates.
 
@@ -181,14 +182,14 @@ def ridge_pass(G, thr_lap, thr, neg_aniso, neg_cross):
         xu = np.empty(cap, np.int64)
         xv = np.empty(cap, np.int64)
         xs = np.empty(cap, np.float32)
-        n, m, mx = ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs)
+        n, m, mx = ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs, thr_cross)
         if m >= 0:
             return n, u[:m], v[:m], ox[:m], oy[:m], nx[:m], ny[:m], st[:m], xu[:mx], xv[:mx], xs[:mx]
         cap = min(2 * cap, most)
 
 
 @njit(error_model="numpy")
-def ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs):
+def ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs, thr_cross=-1.0):
     """`ridge_pass` into the caller's arrays (decision 0091: extraction passes per-thread scratch arrays).
 
     u, v, ox, oy, nx, ny, st: (C,) the line samples' outputs (int64, int64, float32 ×5); xu, xv, xs: (C',)
@@ -204,6 +205,7 @@ def ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny,
     out. The blocks' boundaries do not change any value (each candidate is computed on its own)."""
     H, W = G.shape
     B = _STEGER_BLOCK
+    tc = thr if thr_cross < 0 else np.float32(thr_cross)  # the crossing candidates' −λ2 threshold (0129)
     cap = B + W + 8  # pending candidates never exceed B − 1 + one row's
     cand = np.empty(cap, np.int32)
     flag = np.zeros((W + 7) // 8 * 8, np.uint8)
@@ -249,7 +251,7 @@ def ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny,
             V[6, j] = g[i + W - 1]
             V[7, j] = g[i - W + 1]
             V[8, j] = g[i - W - 1]
-        steger_block(nb, V, thr, neg_aniso, neg_cross, O)
+        steger_block(nb, V, thr, neg_aniso, neg_cross, tc, O)
         kl = 0
         kx = 0
         for j in range(nb):  # the places of the kept ones in the block, branch-free
@@ -283,7 +285,7 @@ def ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny,
 
 
 @njit(error_model="numpy")
-def smooth_ridges_u8(img, k, G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs):
+def smooth_ridges_u8(img, k, G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs, thr_cross=-1.0):
     """`gauss_u8(img, k, G)` and then `ridge_pass_into(G, ...)` in one walk down the image (decision 0091):
     as soon as smoothed row y is written, row y − 1 gets the Laplacian test, and a block of candidates is
     processed when a row leaves at least `_STEGER_BLOCK` pending, while the rows it reads are still in
@@ -295,6 +297,7 @@ def smooth_ridges_u8(img, k, G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy
     ext = np.empty(W + 2 * rk, np.float32)
     T = np.empty((2 * K, W), np.float32)
     B = _STEGER_BLOCK
+    tc = thr if thr_cross < 0 else np.float32(thr_cross)  # the crossing candidates' −λ2 threshold (0129)
     cap = B + W + 8
     cand = np.empty(cap, np.int32)
     flag = np.zeros((W + 7) // 8 * 8, np.uint8)
@@ -378,7 +381,7 @@ def smooth_ridges_u8(img, k, G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy
             V[6, j] = g[i + W - 1]
             V[7, j] = g[i - W + 1]
             V[8, j] = g[i - W - 1]
-        steger_block(nb, V, thr, neg_aniso, neg_cross, O)
+        steger_block(nb, V, thr, neg_aniso, neg_cross, tc, O)
         kl = 0
         kx = 0
         for j in range(nb):

@@ -11,14 +11,16 @@ top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055�
    passes through its square (non-maximum suppression across the line, one sample per pixel along it).
    Anisotropic pixels are line samples; pixels where both eigenvalues are clearly negative are crossing
    candidates (two bright lines crossing make a blob; λ2 < −0.25·|λ1| on the full-resolution path, which
-   admits crossings down to ~53° in the image, decision 0068).
+   admits crossings down to ~53° in the image, decision 0068; −λ2 above 5 deviations of its own noise, the
+   noise of one second derivative, decision 0129).
 3. Each sample's line direction is compared with the two families' directions predicted from the
    calibration (`RigModel.dir_cam`): the closer one names the family.
-4. Junctions: the crossing candidates' local maxima (non-maximum suppression on a grid of cells), each
-   sample assigned to the nearest one (a Voronoi partition on that grid). Around each, a straight line is
-   fitted to each family's samples outside the core, outliers trimmed, and the junction is the
-   intersection of the two fits. A junction is kept only if both lines run *through* it (samples on both
-   sides): T- and L-shapes are occlusion or shadow boundaries, or the pattern's rim.
+4. Junctions: the crossing candidates' local maxima (non-maximum suppression on a grid of cells; two closer
+   than the core radius merged into one, decision 0129), each sample assigned to the nearest one (a Voronoi
+   partition on that grid). Around each, a straight line is fitted to each family's samples outside the
+   core, outliers trimmed, and the junction is the intersection of the two fits. A junction is kept only
+   if both lines run *through* it (samples on both sides): T- and L-shapes are occlusion or shadow
+   boundaries, or the pattern's rim.
 5. Segments: samples outside the junction cores are linked to neighbours within 2 px that lie on the same
    line (same family, parallel normals, small offset across the line) and the links' connected components
    are the segments; kinks and gaps (depth edges, shadows) break them. A segment whose two ends reach two
@@ -54,6 +56,7 @@ import cv2
 import numpy as np
 
 from reconstruction import _extract_kernels as _k
+from reconstruction.crossing_candidates import merge_within, remap_grid
 from reconstruction.corner_junctions import corner_candidates, corner_kinds, dark_beyond
 from reconstruction.junction_arms import retry_trimmed_arms
 from reconstruction.rigmodel import RigModel
@@ -95,6 +98,13 @@ class ExtractOptions:
         opposite neighbours at one spacing) is counted again with the ring samples it shares with them, and an
         arm with fewer than 3 samples is fitted again from every sample of its family near the candidate outside
         the crossings' cores (decision 0120). Full-resolution path only.
+    crossing_eigen_noise: a crossing candidate's weaker curvature −λ2 must be `threshold_sigma` standard
+        deviations of the noise of that one eigenvalue strong (about 0.6 of the Laplacian's noise, the noise of a
+        second derivative along one direction: `_second_derivative_noise_gain`) instead of the Laplacian's; off: the
+        Laplacian's, as a line sample's strength (decision 0129). Full-resolution path only.
+    merge_close_candidates: crossing candidates closer than the core radius to each other (two maxima of one
+        elongated crossing blob, which would split its ring samples) are one candidate, at their score-weighted
+        mean position (`crossing_candidates.merge_within`, decision 0129).
     corner_junctions: a candidate rejected only because one family ends at it (a T, straight arms) is kept as
         a junction (`corner_junctions.py`; stats["junction_corner"] says which). Off: measured not to pay
         (decision 0102). corner_dark: with it, only T's whose stem's missing side is dark (no lit lines there).
@@ -117,6 +127,8 @@ class ExtractOptions:
     corner_junctions: bool = False
     corner_dark: bool = True
     shared_arms: bool = True
+    crossing_eigen_noise: bool = True
+    merge_close_candidates: bool = True
     debug: bool = False
 
 
@@ -242,8 +254,8 @@ def _work_buffer(shape: tuple[int, int]) -> np.ndarray:
     return buf
 
 
-def _ridges(G: np.ndarray, thr_lap, thr, neg_aniso, neg_cross, *, image: np.ndarray | None = None,
-            taps: tuple = ()) -> tuple:
+def _ridges(G: np.ndarray, thr_lap, thr, neg_aniso, neg_cross, thr_cross=np.float32(-1.0), *,
+            image: np.ndarray | None = None, taps: tuple = ()) -> tuple:
     """`_extract_kernels.ridge_pass` with its outputs in arrays owned by the calling thread (views of them
     are returned; `albedo_and_families` copies what it keeps, so nothing returned by `extract_grid` refers
     to them). The arrays start at 1/16 of the image's pixels and double when a frame needs more (decision
@@ -259,9 +271,9 @@ def _ridges(G: np.ndarray, thr_lap, thr, neg_aniso, neg_cross, *, image: np.ndar
             bufs = tuple(np.empty(cap, t) for t in (i64, i64, f32, f32, f32, f32, f32, i64, i64, f32))
             _workspace.ridge = bufs
         if image is not None:
-            n, m, mx = _k.smooth_ridges_u8(image, taps, G, thr_lap, thr, neg_aniso, neg_cross, *bufs)
+            n, m, mx = _k.smooth_ridges_u8(image, taps, G, thr_lap, thr, neg_aniso, neg_cross, *bufs, thr_cross)
         else:
-            n, m, mx = _k.ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, *bufs)
+            n, m, mx = _k.ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, *bufs, thr_cross)
         if m >= 0:
             break
         cap = min(2 * cap, most)
@@ -327,6 +339,24 @@ def _laplacian_noise_gain(sigma: float, scale: int) -> float:
     return float(np.sqrt(acc))
 
 
+@lru_cache(maxsize=16)
+def _second_derivative_noise_gain(sigma: float, scale: int) -> float:
+    """Std of the working image's second difference along one axis ([1, −2, 1]) per unit std of white pixel
+    noise (as `_laplacian_noise_gain`). The smoothed noise is isotropic, so this is the noise of the second
+    derivative along any direction, to first order that of the weaker Hessian eigenvalue on a line or at a
+    crossing (about 0.6 × the Laplacian's; decision 0129)."""
+    n = 2 * (int(np.ceil(4 * sigma)) + 8)
+    k = np.array([[1.0, -2.0, 1.0]], np.float32)
+    acc = 0.0
+    for dy in range(scale):
+        for dx in range(scale):
+            delta = np.zeros((n, n), np.float32)
+            delta[n // 2 + dy, n // 2 + dx] = 1
+            resp = cv2.filter2D(_smooth(delta, sigma, scale), cv2.CV_32F, k, borderType=cv2.BORDER_REFLECT)
+            acc += float((resp.astype(np.float64) ** 2).sum())
+    return float(np.sqrt(acc))
+
+
 _PAD = 16  # margin (cells) of the lookup grids
 
 _dir_f32: tuple = (None, None)  # (model.dir_cam, its float32 (gh·gw, 4) copy): the last rig's
@@ -359,8 +389,11 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     noise_grey = image_noise_grey(img)
     noise = max(noise_grey, 0.5) * _laplacian_noise_gain(round(sigma, 3), scale)
     thr = options.threshold_sigma * noise
+    thr_cross = thr
+    if options.crossing_eigen_noise and scale == 1:  # −λ2 against its own noise, not the Laplacian's (0129)
+        thr_cross = options.threshold_sigma * max(noise_grey, 0.5) * _second_derivative_noise_gain(round(sigma, 3), scale)
     ridge_thr = (np.float32(-0.5 * thr), np.float32(thr), np.float32(-options.anisotropy),
-                 np.float32(-(options.crossing_anisotropy if scale == 1 else options.anisotropy)))
+                 np.float32(-(options.crossing_anisotropy if scale == 1 else options.anisotropy)), np.float32(thr_cross))
     if scale == 1 and _fused_smoothing(img, sigma):
         # --- 1–2. smoothing, ridge candidates and Steger samples in one walk (decision 0091; ms["smooth"]
         # holds both, ms["ridges"] is 0)
@@ -444,6 +477,13 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         # over the core and one smoothing scale more: on wide flat-topped lines the weaker curvature
         # peaks near the corners of the crossing, the blob as a whole is centred (decision 0058)
         seeds = _k.centroids(seed_grid, xu, xv, xs, seeds[:, 0].copy(), seeds[:, 1].copy(), cs, _PAD, max(r0 + s_w, 1.5))
+        if options.merge_close_candidates:  # two maxima of one crossing's blob are one candidate (0129)
+            keep_m, remap_m, mx_, my_, n_merged = merge_within(seeds[:, 0].copy(), seeds[:, 1].copy(), seed_score, r0)
+            stats["junction_candidates_merged"] = int(n_merged)
+            if n_merged:
+                seeds = np.column_stack([mx_, my_])
+                seed_score = seed_score[keep_m]
+                remap_grid(seed_grid, remap_m)
 
     if options.debug:
         stats["debug_raw_candidates"] = seeds * scale

@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 from reconstruction import _ambiguity_kernels as _ak
 from reconstruction import _label_kernels as _k
 from reconstruction.continuation import continue_lines, crossing_gap_px
+from reconstruction.depth_range_labels import label_pieces as label_depth_range_pieces
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import camera_rays_proj, epipolar_lines, paper_epipolar_mb
 from reconstruction.piece_junctions import label_piece_junctions
@@ -802,6 +803,12 @@ class TraceOptions:
         facing piece stays unlabelled take the piece's line (no gap filling reaches them; decision 0106).
     t_nodes: piece_junctions' nodes with one family through (T's) join its graph; the through line's pieces
         at a T are labelled only at the pattern's rim (`reconstruction.t_nodes`, decision 0098).
+    depth_range_labels: label a piece without a labelled sample whose samples' rays, inside the working volume,
+        cross exactly one line of its family and none of the other family (`reconstruction.depth_range_labels`,
+        decision 0128); each ray's stretch is widened by depth_range_tol times the epipolar noise floor
+        (`LabelOptions.noise_floor_px`), pieces of at least cross_min_samples samples; the samples within
+        cross_trim_sigma·σ of a piece's ends stay unlabelled (gap filling reaches them). Runs before the crossing
+        searches, so that the pieces it labels seed them like junction-labelled ones.
     """
 
     mix_sigma: float = 2.0
@@ -838,6 +845,8 @@ class TraceOptions:
     t_nodes: bool = True
     beside_lines: bool = True
     beside_lines_ends: bool = True
+    depth_range_labels: bool = True
+    depth_range_tol: float = 3.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -1270,6 +1279,12 @@ def label_samples(
                 reach_cont = max(reach_cont, cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                      min_angle_deg=options.continue_gap_deg))
             grid = _sample_grid(q, valid, sid, trace_grid_cell_px(model, options), fam, prep)
+        noise_floor = (label_options or LabelOptions()).noise_floor_px
+        if options.depth_range_labels and model is not None:
+            # pieces the working volume alone names (decision 0128)
+            stats["samples_depth_range"] = label_depth_range_pieces(
+                model, q, fam, sid, piece, ts, index, depth_range_mm, tol_px=options.depth_range_tol * noise_floor,
+                min_samples=options.cross_min_samples, trim_px=options.cross_trim_sigma * sigma_px)
         cross_state: dict = {}  # the crossing searches' results, carried to the round after the continuation
         if options.cross_pieces and model is not None:
             stats["samples_from_crossings"] = _crossing_seeds(
