@@ -141,3 +141,49 @@ def edge_jump_median(a, b, keep, comp, labels, ln, xy_junction, index_min, fx, u
     if c == 0:
         return np.nan, 0
     return np.median(d[:c]), c
+
+
+@njit
+def component_edge_steps(members, pos, keep, edges, delta, rel, off_i, off_j, ln, xy_junction, index_min, index_max, fx, k_max,
+                         tol_px):
+    """`labelling.label_epipolar`'s `_restep` up to `edge_steps` in one call (decision 0127; formerly about ten NumPy
+    calls over all edges per component): the kept edges (keep (E,) bool, edges (E, 2), delta (E, 2) int64) with both
+    ends among members (m,) junction ids, in increasing edge order (sel), their ends' positions in members (pa, pb),
+    and `edge_steps` of them with the members' labels rel[members] + (off_i, off_j) and lines ln[members]. pos (M,)
+    intp all −1: work space, restored on return. Returns sel (n,) intp, pa, pb (n,) intp, k (n,) int64."""
+    m = members.shape[0]
+    for p in range(m):
+        pos[members[p]] = p
+    E = edges.shape[0]
+    n = 0
+    for e in range(E):
+        if keep[e] and pos[edges[e, 0]] >= 0 and pos[edges[e, 1]] >= 0:
+            n += 1
+    sel = np.empty(n, np.intp)
+    pa = np.empty(n, np.intp)
+    pb = np.empty(n, np.intp)
+    d_i = np.empty(n, np.int64)
+    d_j = np.empty(n, np.int64)
+    c = 0
+    for e in range(E):
+        if keep[e] and pos[edges[e, 0]] >= 0 and pos[edges[e, 1]] >= 0:
+            sel[c] = e
+            pa[c] = pos[edges[e, 0]]
+            pb[c] = pos[edges[e, 1]]
+            d_i[c] = delta[e, 0]
+            d_j[c] = delta[e, 1]
+            c += 1
+    for p in range(m):
+        pos[members[p]] = -1
+    if n == 0:
+        return sel, pa, pb, np.ones(0, np.int64)
+    lab = np.empty((m, 2), np.int64)
+    lm = np.empty((m, 3))
+    for p in range(m):
+        j = members[p]
+        lab[p, 0] = rel[j, 0] + off_i
+        lab[p, 1] = rel[j, 1] + off_j
+        lm[p, 0] = ln[j, 0]
+        lm[p, 1] = ln[j, 1]
+        lm[p, 2] = ln[j, 2]
+    return sel, pa, pb, edge_steps(pa, pb, d_i, d_j, lab, lm, xy_junction, index_min, index_max, fx, k_max, tol_px)

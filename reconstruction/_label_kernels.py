@@ -658,25 +658,38 @@ def fill_gaps_at(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates
         ends[npl + k] = lab_pos[f_last[k]]
     total = 0
     nb = 6
+    # each end's sample, family and piece, and each candidate's family, read once (decision 0127: the loops below
+    # read these arrays instead of chasing sid[ends[·]] again; q, piece and fam are not written here)
+    end_s = np.empty(ne, np.intp)
+    end_f = np.empty(ne, np.intp)
+    end_p = np.empty(ne, piece.dtype)
+    for k in range(ne):
+        end_s[k] = sid[ends[k]]
+        end_f[k] = fam[end_s[k]]
+        end_p[k] = piece[ends[k]]
+    nC = candidates.shape[0]
+    cand_f = np.empty(nC, np.intp)
+    for k in range(nC):
+        cand_f[k] = fam[candidates[k]]
     for f in (1, 2):
         ea = np.empty(ne, np.intp)
         na = 0
         for k in range(ne):
-            if fam[sid[ends[k]]] == f:
+            if end_f[k] == f:
                 ea[na] = k
                 na += 1
-        cs = np.empty(candidates.shape[0], np.intp)
+        cs = np.empty(nC, np.intp)
         nc = 0
-        for k in range(candidates.shape[0]):
-            if fam[candidates[k]] == f:
+        for k in range(nC):
+            if cand_f[k] == f:
                 cs[nc] = candidates[k]
                 nc += 1
         if na < 2 or nc == 0:
             continue
         pts = np.empty((na, 2))
         for k in range(na):
-            pts[k, 0] = q[sid[ends[ea[k]]], 0]
-            pts[k, 1] = q[sid[ends[ea[k]]], 1]
+            pts[k, 0] = q[end_s[ea[k]], 0]
+            pts[k, 1] = q[end_s[ea[k]], 1]
         qq = np.empty((nc, 2))
         for k in range(nc):
             qq[k, 0] = q[cs[k], 0]
@@ -684,15 +697,16 @@ def fill_gaps_at(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates
         dist, kk = knn_within(pts, qq, nb, 2 * reach_px)
         for ci in range(nc):
             cid = cs[ci]
+            cx = qq[ci, 0]
+            cy = qq[ci, 1]
             # the nearest end beyond which the sample lies
             e1 = -1
             for s in range(nb):
                 if not math.isfinite(dist[ci, s]):
                     break
                 e = ea[kk[ci, s]]
-                ep = sid[ends[e]]
-                v0 = q[cid, 0] - q[ep, 0]
-                v1 = q[cid, 1] - q[ep, 1]
+                v0 = cx - pts[kk[ci, s], 0]
+                v1 = cy - pts[kk[ci, s], 1]
                 along = v0 * out_dir[e, 0] + v1 * out_dir[e, 1]
                 lateral = abs(v0 * out_dir[e, 1] - v1 * out_dir[e, 0])
                 if along > 0 and lateral <= 2 * seed_lateral_px:
@@ -702,19 +716,18 @@ def fill_gaps_at(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates
                 continue
             # the nearest facing end of another piece with the same index
             e2 = -1
-            idx1 = index[sid[ends[e1]]]
+            idx1 = index[end_s[e1]]
             for s in range(nb):
                 if not math.isfinite(dist[ci, s]):
                     break
                 e = ea[kk[ci, s]]
-                ep = sid[ends[e]]
-                v0 = q[cid, 0] - q[ep, 0]
-                v1 = q[cid, 1] - q[ep, 1]
+                v0 = cx - pts[kk[ci, s], 0]
+                v1 = cy - pts[kk[ci, s], 1]
                 along = v0 * out_dir[e, 0] + v1 * out_dir[e, 1]
                 lateral = abs(v0 * out_dir[e, 1] - v1 * out_dir[e, 0])
                 if not (along > 0 and lateral <= 2 * seed_lateral_px):
                     continue
-                if piece[ends[e]] == piece[ends[e1]] or index[ep] != idx1:
+                if end_p[e] == end_p[e1] or index[end_s[e]] != idx1:
                     continue
                 if out_dir[e, 0] * out_dir[e1, 0] + out_dir[e, 1] * out_dir[e1, 1] < -0.9:
                     e2 = e
@@ -728,15 +741,15 @@ def fill_gaps_at(q, fam, sid, piece, tangent, index, seed_jid, q_out, candidates
             L = max(math.hypot(ch0, ch1), 1e-9)
             u0 = ch0 / L
             u1 = ch1 / L
-            w0 = q[cid, 0] - p10
-            w1 = q[cid, 1] - p11
+            w0 = cx - p10
+            w1 = cy - p11
             t = w0 * u0 + w1 * u1
             lat = abs(w0 * u1 - w1 * u0)
             if lat <= seed_lateral_px and t > 0 and t < L:
                 q_out[cid, 0] = p10 + t * u0
                 q_out[cid, 1] = p11 + t * u1
                 index[cid] = idx1
-                seed_jid[cid] = seed_jid[sid[ends[e1]]]
+                seed_jid[cid] = seed_jid[end_s[e1]]
                 total += 1
     return total
 

@@ -245,13 +245,29 @@ def _choose_offset(
     # outliers below) and their scores (`_label_kernels.offset_scores`); the walk down the ranking (its 16
     # best) until two offsets put the surface inside the working volume (`offset_depth_walk`, decision 0078;
     # formerly chunks of 4 through `offset_points` and NumPy's `depth_cam`, with the same results); the best
-    # one's residuals (`offset_residuals`): one compiled call (`offset_choice`, decision 0087).
-    status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside = _k.offset_choice(
-        rel, ln, xy_cam, model.xy_junction, int(model.index_min), int(model.index_max), float(model.fx_proj),
+    # one's residuals (`offset_residuals`): one compiled call (`offset_choice`, decision 0087), with the candidate
+    # scan by blocks of the pattern's junctions (`offset_choice_b`, as `offset_choice_groups`; decisions 0124, 0127).
+    status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside = _k.offset_choice_b(
+        rel, ln, xy_cam, model.xy_junction, _junction_blocks(model.xy_junction), _k._BLOCK, int(model.index_min), int(model.index_max),
+        float(model.fx_proj),
         int(options.candidate_refs), float(options.candidate_band_px), float(options.min_inside_fraction), float(cap2),
         model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm))
     return _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_fail, ok, s1, s2, n_eff, off_best, r_full, inside,
                       members=members, graph=graph, retry_limit_px=retry_limit_px, restep=restep)
+
+
+_BLOCKS: dict = {}  # id(xy_junction) -> (xy_junction, its blocks)
+
+
+def _junction_blocks(xy_junction: np.ndarray) -> np.ndarray:
+    """`_label_kernels.junction_blocks(xy_junction, _BLOCK)`, kept per pattern table (a rig model's `xy_junction`,
+    read-only) so that `_choose_offset` does not bound the blocks again on every call."""
+    hit = _BLOCKS.get(id(xy_junction))
+    if hit is None or hit[0] is not xy_junction:
+        if len(_BLOCKS) >= 16:
+            _BLOCKS.clear()
+        hit = _BLOCKS[id(xy_junction)] = (xy_junction, _k.junction_blocks(xy_junction, _k._BLOCK))
+    return hit[1]
 
 
 class _Graph:
@@ -435,23 +451,21 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     if options.skip_edges and bool((g_ok.astype(np.bool_) & ~g_written.astype(np.bool_)).any()):
         skip_tol = _edge_jump_tol(model, lines, labels, comp, e_arrays[0], e_arrays[1], keep, options)
 
+    restep_pos = np.full(M, -1, np.intp)  # `component_edge_steps`' work space
+
     def _restep(members, off):
         """Decision 0125: give the component's edges the steps the epipolar geometry names under offset off, and cut
         those no step explains (decision 0130); (the re-propagated pieces, whether an edge was cut), or None when no
         edge changes."""
         nonlocal delta_all, edges
-        pos_m = np.full(M, -1, np.intp)
-        pos_m[members] = np.arange(len(members))
-        sel = np.flatnonzero(keep & (pos_m[edges_all[:, 0]] >= 0) & (pos_m[edges_all[:, 1]] >= 0))
+        # the component's kept edges, their ends' positions and their steps: one compiled call (decision 0127)
+        off = np.asarray(off, np.int64)
+        sel, pa, pb, k = _ak.component_edge_steps(np.ascontiguousarray(members, np.intp), restep_pos, keep, edges_all, delta_all, rel,
+                                                  int(off[0]), int(off[1]), lines, model.xy_junction, int(model.index_min),
+                                                  int(model.index_max), float(model.fx_proj), int(options.skip_max_steps), float(skip_tol))
         if len(sel) == 0:
             return None
-        sub_e = pos_m[edges_all[sel]]
-        step_args = (np.ascontiguousarray(sub_e[:, 0]), np.ascontiguousarray(sub_e[:, 1]),
-                     np.ascontiguousarray(delta_all[sel, 0]), np.ascontiguousarray(delta_all[sel, 1]),
-                     np.ascontiguousarray(rel[members] + np.asarray(off, np.int64)), np.ascontiguousarray(lines[members]),
-                     model.xy_junction, int(model.index_min), int(model.index_max), float(model.fx_proj),
-                     int(options.skip_max_steps), float(skip_tol))
-        k = _ak.edge_steps(*step_args)
+        sub_e = np.column_stack([pa, pb])
         changed = k != 1
         # edges no step along their line explains: cut (decision 0130)
         cut = np.zeros(len(sel), np.bool_)
@@ -460,7 +474,10 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             # the jump must be an outlier as a junction's residual is (decision 0044's max(6σ̂, 0.3 px), with the
             # frame's neighbour scale σ̂_Δ = τ / skip_tol_sigma), and no step along the line may fit within it
             cut_tol = max(options.outlier_sigma / options.skip_tol_sigma * float(skip_tol), options.max_residual_px)
-            cut = edge_misfits(*step_args[:-1], float(cut_tol), np.ascontiguousarray(members, np.intp), start, nbr, pos) & ~changed
+            step_args = (pa, pb, np.ascontiguousarray(delta_all[sel, 0]), np.ascontiguousarray(delta_all[sel, 1]),
+                         np.ascontiguousarray(rel[members] + off), np.ascontiguousarray(lines[members]), model.xy_junction,
+                         int(model.index_min), int(model.index_max), float(model.fx_proj), int(options.skip_max_steps))
+            cut = edge_misfits(*step_args, float(cut_tol), np.ascontiguousarray(members, np.intp), start, nbr, pos) & ~changed
         if not changed.any() and not cut.any():
             return None
         if changed.any():

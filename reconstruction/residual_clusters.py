@@ -63,6 +63,22 @@ def _median(x, n):
 
 
 @njit
+def _median_in_place(x, n):
+    """`_median(x, n)` by an insertion sort of x[:n] in place (decision 0127: the rings of `elevated_pieces` hold a
+    junction and its few neighbours; `_median`'s np.sort allocated a copy per junction). The sorted values are the
+    same whatever the sort, so the median is the same number."""
+    for i in range(1, n):
+        v = x[i]
+        j = i - 1
+        while j >= 0 and x[j] > v:
+            x[j + 1] = x[j]
+            j -= 1
+        x[j + 1] = v
+    h = n // 2
+    return x[h] if n % 2 == 1 else 0.5 * (x[h - 1] + x[h])
+
+
+@njit
 def _flood(k, allowed, mark, members, start, nbr, pos, stack, found):
     """The connected set of component positions reachable from k over kept edges through `allowed` positions not
     yet marked: marks them with k (mark (m,), −1 = unmarked), lists them in found[:n] and returns n. stack: work
@@ -134,7 +150,7 @@ def elevated_pieces(members, residual, bad, start, nbr, pos, factor, floor_px, m
                     if math.isfinite(y):
                         ring[nr] = abs(y)
                         nr += 1
-            if nr >= 2 and _median(ring, nr) > max(factor * sigma, floor_px):
+            if nr >= 2 and _median_in_place(ring, nr) > max(factor * sigma, floor_px):
                 elev[k] = True
         # connected groups of elevated junctions; those of at least min_cluster are taken out
         group = np.full(m, -1, np.intp)
