@@ -815,6 +815,10 @@ class TraceOptions:
         that end, with a labelled line of the other family, names another line of the piece's family (the
         crossing check above, cross_radius and cross_residual_px): the trace ran across a depth edge onto a
         collinear line of another surface (decision 0084, `reconstruction.trace_ends`).
+    far_end_mean_shift: with far_end_check, the depth edge inside such a stretch is put at the ridge
+        brightness's maximum-likelihood step (every sample on its side of the split counts) instead of its
+        largest step between two consecutive samples, which sensor noise wins over an edge the smoothing
+        spreads over a few samples (decision 0132, `trace_ends.unlabel_stretches_ml`).
     from_segments: build the trace pieces from extraction's segments (`GridObservation.segment_linked`:
         ordered along each segment's fitted line, joined where segment ends, or a kept sample outside every
         segment, lie within link_px of one another, then cut by the rules above) instead of linking the
@@ -870,6 +874,7 @@ class TraceOptions:
     continue_gap_deg: float = 45.0
     cross_rounds_after: int = 1
     far_end_check: bool = True
+    far_end_mean_shift: bool = True
     from_segments: bool = True
     piece_seeds: bool = False  # decision 0131: off (on unseen scenes its few points are often wrong; decision 0089 measured it small)
     piece_junctions: bool = True
@@ -1380,7 +1385,8 @@ def label_samples(
             stats["samples_far_end_cut"] = cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, depth_range_mm,
                                                         options.cross_radius * model.junction_step_cam_px,
                                                         options.cross_residual_px, grid, UNLABELLED, options.cross_min_samples,
-                                                        options.seed_lateral_px * cell, ridge)
+                                                        options.seed_lateral_px * cell, ridge,
+                                                        mean_shift=options.far_end_mean_shift)
             # a labelled end running into a collinear line of its family with another index (0084, round 4b)
             stats["samples_facing_cut"] = cut_facing_ends(q, fam, sid, piece, tangent, index, seed_jid, obs.q_junction, grid,
                                                           reach_px=cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,

@@ -147,6 +147,79 @@ def unlabel_stretches(cut, lo, hi, sign, beyond, sid, ridge, use_ridge, index, s
 
 
 @njit
+def mean_shift_split(x):
+    """The maximum-likelihood position of one step in the mean of the sequence x (n,) under white noise of one
+    variance: the split s (1 ≤ s < n; x[:s] | x[s:]) maximising |mean(x[:s]) − mean(x[s:])|·√(s(n−s)/n), the
+    two-sample statistic whose square is the log-likelihood gain of a step at s. Every sample counts on its
+    side, so a step spread over a few samples (a smoothed edge) outweighs a larger difference of two
+    neighbouring samples that noise makes, which the largest single step does not (decision 0132). −1 when
+    n < 2; the first split on a tie."""
+    n = x.shape[0]
+    if n < 2:
+        return -1
+    tot = 0.0
+    for i in range(n):
+        tot += x[i]
+    best = -1.0
+    at = -1
+    left = 0.0
+    for s in range(1, n):
+        left += x[s - 1]
+        d = left / s - (tot - left) / (n - s)
+        t = abs(d) * math.sqrt(s * (n - s) / n)
+        if t > best:
+            best = t
+            at = s
+    return at
+
+
+@njit
+def unlabel_stretches_ml(cut, lo, hi, sign, beyond, sid, ridge, index, seed_jid):
+    """`unlabel_stretches` with the edge at the maximum-likelihood step of the ridge brightness
+    (`mean_shift_split`) instead of the largest step between consecutive samples (decision 0132). The
+    sequence is the stretch with the seed's sample on its seed side and, when there is one (beyond[r] ≥ 0,
+    a sample id), the line's first sample past the crossing on its end side; nothing when the split falls
+    across the crossing (the edge is at the crossing), else the stretch loses its label from the split out
+    to its end. Returns how many samples lost their label."""
+    m = 0
+    for r in range(cut.shape[0]):
+        if not cut[r]:
+            continue
+        a = lo[r]
+        b = hi[r]
+        nb = 1 if beyond[r] >= 0 else 0
+        n = b - a + 2 + nb
+        x = np.empty(n)
+        if sign[r] < 0:
+            # beyond, lo .. hi, hi + 1 (the seed side); a split s keeps x[s:]
+            if nb:
+                x[0] = ridge[beyond[r]]
+            for k in range(a, b + 2):
+                x[nb + k - a] = ridge[sid[k]]
+            s = mean_shift_split(x)
+            if s <= nb:
+                continue  # across the crossing
+            b = a + s - nb - 1
+        else:
+            # lo − 1 (the seed side), lo .. hi, beyond; a split s keeps x[:s]
+            for k in range(a - 1, b + 1):
+                x[k - a + 1] = ridge[sid[k]]
+            if nb:
+                x[n - 1] = ridge[beyond[r]]
+            s = mean_shift_split(x)
+            if s >= n - nb:
+                continue  # across the crossing
+            a = a - 1 + s
+        for k in range(a, b + 1):
+            t = sid[k]
+            if math.isfinite(index[t]):
+                index[t] = np.nan
+                seed_jid[t] = -1
+                m += 1
+    return m
+
+
+@njit
 def line_goes_on(c, e, te, sign, fe, q, fam, lateral_px, x0, y0, cell, gw, gh, start, items, pos_of):
     """For each crossing c (E, 2) at the end e (E, 2) of a piece (tangent te, sign −1 first / +1 last end,
     family fe): is there a sample of family fe past the crossing, on the end's tangent line (within
@@ -195,7 +268,7 @@ def line_goes_on(c, e, te, sign, fe, q, fam, lateral_px, x0, y0, cell, gw, gh, s
 
 def cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, depth_range_mm, radius_px: float,
                  tol_px: float, grid: tuple, unlabelled: int, min_samples: int, lateral_px: float,
-                 ridge: np.ndarray | None = None) -> int:
+                 ridge: np.ndarray | None = None, mean_shift: bool = False) -> int:
     """Take the label off the stretch of a seeded piece between its outermost seed and an end whose crossing
     with a labelled line of the other family names another line of the piece's family (module doc).
 
@@ -203,6 +276,8 @@ def cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, dept
     seeds' index; index (P,) float and seed_jid (P,), modified in place. radius_px: how far from the end the
     crossing's other line may be (camera px); tol_px: the crossing's largest distance from a line centre
     (projector px); min_samples: shorter stretches are not checked; lateral_px: `line_goes_on`; grid: `labelling._sample_grid` of the valid samples, cells at least radius_px wide.
+    mean_shift: the edge at the ridge brightness's maximum-likelihood step (`unlabel_stretches_ml`, decision
+    0132) instead of its largest step between consecutive samples.
     Returns the number of samples that lost their label."""
     from reconstruction import _label_kernels as _k
 
@@ -226,6 +301,8 @@ def cut_far_ends(q, fam, sid, piece, tangent, seed, index, seed_jid, model, dept
     if not cut.any():
         return 0
     use_ridge = ridge is not None and len(ridge) == len(q)
+    if use_ridge and mean_shift:
+        return int(unlabel_stretches_ml(cut, lo, hi, sign, beyond, sid, ridge, index, seed_jid))
     return int(unlabel_stretches(cut, lo, hi, sign, beyond, sid, ridge if use_ridge else np.zeros(0, np.float32), use_ridge, index, seed_jid))
 
 
