@@ -152,6 +152,24 @@ def _k_stretch_one(x, y, fam, R, t, z, Kp, dist, has_dist, cu, cv, nn, offs, ind
 
 
 @njit
+def _k_stretches_meet(xy, a, b, f, R, t, z0, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min, tol_f):
+    """The intersection (lo, hi) in index units of family f's stretches (widened by tol_f) of positions a … b − 1;
+    lo = inf when a ray misses the projector. Stops as soon as no integer is left in it."""
+    lo = -np.inf
+    hi = np.inf
+    for s in range(a, b):
+        c0 = _k_stretch_one(xy[s, 0], xy[s, 1], f, R, t, z0, Kp, dist, has_dist, cu, cv, nn, offs, index_min)
+        c1 = _k_stretch_one(xy[s, 0], xy[s, 1], f, R, t, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min)
+        if not (math.isfinite(c0) and math.isfinite(c1)):
+            return np.inf, hi
+        lo = max(lo, min(c0, c1) - tol_f)
+        hi = min(hi, max(c0, c1) + tol_f)
+        if np.ceil(lo) > np.floor(hi):
+            break
+    return lo, hi
+
+
+@njit
 def _k_piece_candidates(xy, fam, pid, R, t, z0, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min, index_max, tol, other_family):
     """Per piece (pid (m,) non-decreasing ids of the positions, xy (m, 2) their normalised camera coordinates, fam
     (m,) their family): the single index inside the intersection of the widened stretches (tol (2,) per family,
@@ -168,34 +186,12 @@ def _k_piece_candidates(xy, fam, pid, R, t, z0, z1, Kp, dist, has_dist, cu, cv, 
             b += 1
         f = fam[a]
         g = 3 - f
-        lo_f = -np.inf
-        hi_f = np.inf
-        lo_g = -np.inf
-        hi_g = np.inf
-        for s in range(a, b):
-            c0 = _k_stretch_one(xy[s, 0], xy[s, 1], f, R, t, z0, Kp, dist, has_dist, cu, cv, nn, offs, index_min)
-            c1 = _k_stretch_one(xy[s, 0], xy[s, 1], f, R, t, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min)
-            if not (math.isfinite(c0) and math.isfinite(c1)):
-                lo_f = np.inf
-                break
-            lo_f = max(lo_f, min(c0, c1) - tol[f - 1])
-            hi_f = min(hi_f, max(c0, c1) + tol[f - 1])
-            if np.ceil(lo_f) > np.floor(hi_f):
-                break
+        lo_f, hi_f = _k_stretches_meet(xy, a, b, f, R, t, z0, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min, tol[f - 1])
         k_lo = max(np.ceil(lo_f), index_min)
         k_hi = min(np.floor(hi_f), index_max)
         ok = k_lo == k_hi
         if ok and other_family:
-            for s in range(a, b):
-                c0 = _k_stretch_one(xy[s, 0], xy[s, 1], g, R, t, z0, Kp, dist, has_dist, cu, cv, nn, offs, index_min)
-                c1 = _k_stretch_one(xy[s, 0], xy[s, 1], g, R, t, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min)
-                if not (math.isfinite(c0) and math.isfinite(c1)):
-                    lo_g = np.inf
-                    break
-                lo_g = max(lo_g, min(c0, c1) - tol[g - 1])
-                hi_g = min(hi_g, max(c0, c1) + tol[g - 1])
-                if np.ceil(lo_g) > np.floor(hi_g):
-                    break
+            lo_g, hi_g = _k_stretches_meet(xy, a, b, g, R, t, z0, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min, tol[g - 1])
             if max(np.ceil(lo_g), index_min) <= min(np.floor(hi_g), index_max):
                 ok = False
         if ok:
