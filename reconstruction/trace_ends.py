@@ -137,12 +137,20 @@ def unlabel_stretches(cut, lo, hi, sign, beyond, sid, ridge, use_ridge, index, s
                 a = at
             if across > best:
                 continue
-        for k in range(a, b + 1):
-            s = sid[k]
-            if math.isfinite(index[s]):
-                index[s] = np.nan
-                seed_jid[s] = -1
-                m += 1
+        m += _unlabel(sid, a, b, index, seed_jid)
+    return m
+
+
+@njit
+def _unlabel(sid, a, b, index, seed_jid):
+    """Trace positions a … b lose their labels (index NaN, seed_jid −1); returns how many had one."""
+    m = 0
+    for k in range(a, b + 1):
+        s = sid[k]
+        if math.isfinite(index[s]):
+            index[s] = np.nan
+            seed_jid[s] = -1
+            m += 1
     return m
 
 
@@ -210,12 +218,7 @@ def unlabel_stretches_ml(cut, lo, hi, sign, beyond, sid, ridge, index, seed_jid)
             if s >= n - nb:
                 continue  # across the crossing
             a = a - 1 + s
-        for k in range(a, b + 1):
-            t = sid[k]
-            if math.isfinite(index[t]):
-                index[t] = np.nan
-                seed_jid[t] = -1
-                m += 1
+        m += _unlabel(sid, a, b, index, seed_jid)
     return m
 
 
