@@ -8,7 +8,6 @@ noise deviations: with the Laplacian's threshold they give no crossing pixel at 
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
