@@ -59,6 +59,7 @@ from reconstruction import _extract_kernels as _k
 from reconstruction.crossing_candidates import merge_within, remap_grid
 from reconstruction.corner_junctions import corner_candidates, corner_kinds, dark_beyond
 from reconstruction.junction_arms import retry_trimmed_arms
+from reconstruction.acute_recentre import acute_retry, recentre_acute
 from reconstruction.rigmodel import RigModel
 
 
@@ -105,6 +106,10 @@ class ExtractOptions:
     merge_close_candidates: crossing candidates closer than the core radius to each other (two maxima of one
         elongated crossing blob, which would split its ring samples) are one candidate, at their score-weighted
         mean position (`crossing_candidates.merge_within`, decision 0129).
+    acute_recentre: a candidate that fails only the through or the off-centre test, whose arms' intersection lies
+        off it along the bisector of the acute crossing angle θ (within the tolerance × sin 45° / sin(θ/2), the
+        elongation of the crossing blob; across it within the tolerance), is judged again with its sides counted
+        from that intersection (`acute_recentre.py`, decision 0133). Off: every test relative to the candidate.
     corner_junctions: a candidate rejected only because one family ends at it (a T, straight arms) is kept as
         a junction (`corner_junctions.py`; stats["junction_corner"] says which). Off: measured not to pay
         (decision 0102). corner_dark: with it, only T's whose stem's missing side is dark (no lit lines there).
@@ -129,6 +134,7 @@ class ExtractOptions:
     shared_arms: bool = True
     crossing_eigen_noise: bool = True
     merge_close_candidates: bool = True
+    acute_recentre: bool = True
     debug: bool = False
 
 
@@ -577,6 +583,21 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
             float(np.sin(np.deg2rad(options.max_arm_turn_deg))), max(options.max_junction_offset_px / scale, 0.5 * r0 + 0.5),
             options.max_segment_rms_px / scale,
         )  # fmt: skip
+        if options.acute_recentre:  # acute crossings: sides from the arms' intersection, not the blob (0133)
+            off_tol = max(options.max_junction_offset_px / scale, 0.5 * r0 + 0.5)
+            retry, mx, my = acute_retry(valid, cnt, n_neg, n_pos, par, offc, qj, dr, seeds_x, seeds_y, off_tol)
+            n_re = 0
+            if retry.any():
+                fits = (cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin)
+                ok = recentre_acute(fits, _k.junction_fits(arm_of, fam, qx32, qy32, nx32, ny32, mx, my, ns), retry)
+                if ok.any():
+                    valid, qj, jump, par, offc, cross, counts = _k.junction_verdicts(
+                        cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, np.where(ok, mx, seeds_x), np.where(ok, my, seeds_y),
+                        options.max_segment_rms_px / scale, float(np.sin(np.deg2rad(options.max_arm_turn_deg))), off_tol,
+                        options.max_segment_rms_px / scale,
+                    )  # fmt: skip
+                    n_re = int((ok & valid).sum())
+            stats["junctions_recentred"] = n_re
         if options.corner_junctions:  # T's: one family through, straight arms (decision 0102)
             corner = corner_candidates(valid, cnt, n_neg, n_pos, rms, jump, par, offc, qj, options.max_segment_rms_px / scale)
             if options.corner_dark:
@@ -595,7 +616,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         # two candidates on one crossing converge to one intersection: keep the stronger
         reasons["duplicate"] = int(_k.drop_duplicates(valid, qj, seed_score))
         if options.debug:
-            stats["debug_fit"] = {"cnt": cnt, "n_neg": n_neg, "n_pos": n_pos, "rms": rms, "qj": qj * scale, "jump": jump, "jump_off": np.abs(m_neg - m_pos).reshape(ns, 2) * scale, "mean_sin": mean_sin.reshape(ns, 2), "offc": offc, "par": par, "cross": cross}
+            stats["debug_fit"] = {"dr": dr * 1.0, "cnt": cnt, "n_neg": n_neg, "n_pos": n_pos, "rms": rms, "qj": qj * scale, "jump": jump, "jump_off": np.abs(m_neg - m_pos).reshape(ns, 2) * scale, "mean_sin": mean_sin.reshape(ns, 2), "offc": offc, "par": par, "cross": cross}
     stats["junctions_rejected"] = reasons
     if options.debug:
         stats["debug_seg"] = seg
