@@ -109,7 +109,9 @@ class ExtractOptions:
     acute_recentre: a candidate that fails only the through or the off-centre test, whose arms' intersection lies
         off it along the bisector of the acute crossing angle θ (within the tolerance × sin 45° / sin(θ/2), the
         elongation of the crossing blob; across it within the tolerance), is judged again with its sides counted
-        from that intersection (`acute_recentre.py`, decision 0133). Off: every test relative to the candidate.
+        from that intersection (`acute_recentre.py`, decision 0133). Off by default (the lead's call: the junctions it
+        adds are right, but the label stage mislabels one on seed 133, 0.043 → 0.177 % of its points more than 1 %
+        off, for coverage gains of 0–1 point); off: every test relative to the candidate.
     corner_junctions: a candidate rejected only because one family ends at it (a T, straight arms) is kept as
         a junction (`corner_junctions.py`; stats["junction_corner"] says which). Off: measured not to pay
         (decision 0102). corner_dark: with it, only T's whose stem's missing side is dark (no lit lines there).
@@ -134,7 +136,7 @@ class ExtractOptions:
     shared_arms: bool = True
     crossing_eigen_noise: bool = True
     merge_close_candidates: bool = True
-    acute_recentre: bool = True
+    acute_recentre: bool = False
     debug: bool = False
 
 
