@@ -374,12 +374,15 @@ def _lone_arm_floor(obs, order, bounds, g_written, g_s1, g_s2, g_neff, labels, r
     again with σ² = max(s1, noise_floor_px², ρ²), ρ the smaller of its two arms' fit RMS (obs.junction_rms, camera px):
     a lone junction cannot measure its own noise, and arms that depart from straight lines (unresolved or aliased
     lines beside it, an acute crossing) bound how well its position is known. Those that fail the ambiguity test
-    with it are unwritten (labels, residual cleared in place). Returns (G,) bool, the groups unwritten, or None."""
+    with it are unwritten (labels, residual cleared in place); not those whose runner-up is at the residual cap (the
+    capped score cannot weigh a margin beyond it). Returns (G,) bool, the groups unwritten, or None."""
     rms = getattr(obs, "junction_rms", None)
     if not options.lone_arm_floor or rms is None or len(rms) != len(order) or len(bounds) < 2:
         return None
     sizes = np.diff(bounds)
-    g = np.flatnonzero((sizes == 1) & g_written.astype(np.bool_))
+    # a runner-up at the residual cap (≥ residual_cap_px off its epipolar line) is beyond what the capped scores can
+    # weigh against ρ: those stay as the compiled call judged them
+    g = np.flatnonzero((sizes == 1) & g_written.astype(np.bool_) & (np.asarray(g_s2, np.float64) < options.residual_cap_px**2))
     if len(g) == 0:
         return None
     k = order[bounds[g]]

@@ -29,7 +29,10 @@ def test_lone_arm_floor_rejects_only_rough_lone_junctions():
     # switched off, or a clear runner-up (1 px): nothing changes
     lab2 = np.arange(10, dtype=np.int64).reshape(5, 2)
     assert _lone_arm_floor(obs, order, bounds, written, s1, s2, n_eff, lab2, residual.copy(), LabelOptions(lone_arm_floor=False)) is None
+    # a runner-up at the residual cap (1 px) is left as the compiled call judged it
     assert _lone_arm_floor(obs, order, bounds, written, s1, np.ones(4), n_eff, lab2, residual.copy(), LabelOptions()) is None
+    assert _lone_arm_floor(obs, order, bounds, written, s1, np.full(4, 0.65**2), n_eff, lab2, residual.copy(), LabelOptions()) is not None
+    lab2[:] = np.arange(10).reshape(5, 2)
     assert (lab2 == np.arange(10).reshape(5, 2)).all()
     # an observation without arm fits (the piece-junction graphs): no floor
     assert _lone_arm_floor(SimpleNamespace(q_junction=np.zeros((5, 2))), order, bounds, written, s1, s2, n_eff, lab2, residual.copy(),
