@@ -79,6 +79,9 @@ class LabelOptions:
     min_split_component: pieces split off as outliers need this many junctions to be labelled again.
     max_split_rounds: how often a component may be split.
     min_component: components with fewer junctions are left out.
+    lone_arm_floor: a component of one junction is judged with the smaller of its arms' fit RMS (camera px) as the
+        noise floor of the ambiguity test as well (decision 0134): it cannot measure its own noise, and arms that
+        depart from straight lines (aliased lines beside it, an acute crossing) bound how well its position is known.
     residual_clusters, cluster_factor, cluster_floor_px, cluster_min: a connected group of at least cluster_min
         junctions whose local median residual exceeds max(cluster_factor·σ̂, cluster_floor_px) is taken out like
         outliers, and of the rest the connected pieces no larger than that group are labelled again on their own
@@ -107,6 +110,7 @@ class LabelOptions:
     min_split_component: int = 3
     max_split_rounds: int = 3
     min_component: int = 1
+    lone_arm_floor: bool = True
     residual_clusters: bool = True
     cluster_factor: float = 3.0
     cluster_floor_px: float = 0.075
@@ -365,6 +369,38 @@ def _edge_jump_tol(model: RigModel, lines: np.ndarray, labels: np.ndarray, comp:
     return options.skip_tol_sigma * 1.4826 * float(med)
 
 
+def _lone_arm_floor(obs, order, bounds, g_written, g_s1, g_s2, g_neff, labels, residual, options: LabelOptions) -> np.ndarray | None:
+    """Decision 0134: a first-round component of one junction (no edge) that the compiled call accepted is judged
+    again with σ² = max(s1, noise_floor_px², ρ²), ρ the smaller of its two arms' fit RMS (obs.junction_rms, camera px):
+    a lone junction cannot measure its own noise, and arms that depart from straight lines (unresolved or aliased
+    lines beside it, an acute crossing) bound how well its position is known. Those that fail the ambiguity test
+    with it are unwritten (labels, residual cleared in place); not those whose runner-up is at the residual cap (the
+    capped score cannot weigh a margin beyond it). Returns (G,) bool, the groups unwritten, or None."""
+    rms = getattr(obs, "junction_rms", None)
+    if not options.lone_arm_floor or rms is None or len(rms) != len(order) or len(bounds) < 2:
+        return None
+    sizes = np.diff(bounds)
+    # a runner-up at the residual cap (≥ residual_cap_px off its epipolar line) is beyond what the capped scores can
+    # weigh against ρ: those stay as the compiled call judged them
+    g = np.flatnonzero((sizes == 1) & g_written.astype(np.bool_) & (np.asarray(g_s2, np.float64) < options.residual_cap_px**2))
+    if len(g) == 0:
+        return None
+    k = order[bounds[g]]
+    rho = np.min(np.asarray(rms, np.float64)[k], axis=1)
+    s1 = np.asarray(g_s1, np.float64)[g]
+    s2 = np.asarray(g_s2, np.float64)[g]
+    n_eff = np.asarray(g_neff, np.float64)[g]
+    sigma2 = np.maximum(np.maximum(s1, options.noise_floor_px**2), np.where(np.isfinite(rho), rho, 0.0) ** 2)
+    fail = (n_eff * (s2 - s1) / sigma2 < options.ambiguity_chi2) | (s2 < options.min_rms_ratio**2 * sigma2)
+    if not fail.any():
+        return None
+    out = np.zeros(len(bounds) - 1, np.bool_)
+    out[g[fail]] = True
+    labels[k[fail]] = UNLABELLED
+    residual[k[fail]] = np.nan
+    return out
+
+
 def _outlier_limit(r: np.ndarray, options: LabelOptions) -> float:
     """max(outlier_sigma·σ̂, max_residual_px), σ̂ = 1.4826·median|r| (half-normal: median |r| = 0.674 σ)."""
     med = float(_k.median_finite(np.ascontiguousarray(r, np.float64)))
@@ -421,6 +457,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm),
         float(options.outlier_sigma), float(options.max_residual_px), float(options.noise_floor_px**2),
         float(options.ambiguity_chi2), float(options.min_rms_ratio**2), labels, residual)
+    lone_rejected = _lone_arm_floor(obs, order, bounds, g_written, g_s1, g_s2, g_neff, labels, residual, options)  # decision 0134
     graph = _Graph(int(M), e_arrays[0], e_arrays[1], keep)  # the kept edges, for decision 0122's noise split
     retry_limit = _frame_retry_limit(residual, options)  # decision 0123
     # Groups of junctions off their epipolar lines together (decision 0108): taken out like outliers.
@@ -521,6 +558,11 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
                 return out is not None
 
             restep = _restep_component
+        if g >= 0 and lone_rejected is not None and lone_rejected[g]:
+            # a lone junction whose arms' fit leaves its position too uncertain for its margin (decision 0134)
+            left["ambiguous"] += m
+            stats["ambiguous"] += 1
+            continue
         if g >= 0 and g_written[g]:
             # accepted and written in the compiled call (`_choice_of`'s path without the retry)
             stats["out_of_depth_range"] += int(g_fail[g])
