@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from reconstruction import _label_kernels as K
-from reconstruction import labelling
 from reconstruction.extraction import ExtractOptions, extract_grid, sigma_for
 from reconstruction.labelling import LabelOptions, TraceOptions, label_epipolar, label_samples
 from reconstruction.rigmodel import rig_model
+from tests.reconstruction._truth import true_index
 
 LINK_PX = 1.6
 LATERAL_PX = 0.5
@@ -119,15 +119,6 @@ def _samples(s, model, obs, labels, **trace):
                          depth_range_mm=s.depth_range_mm, image=s.image, line_width_px=model.line_width_cam_px)
 
 
-def _true_index(s, q: np.ndarray, fam: np.ndarray) -> np.ndarray:
-    import cv2
-
-    m = q.astype(np.float32).reshape(-1, 1, 2)
-    qp = cv2.remap(s.truth.q_proj.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderValue=np.nan).reshape(-1, 2)
-    n = np.where(fam == 1, s.pattern.n1, s.pattern.n2)
-    return ((qp[:, 1] - s.pattern.centre_px[1]) - n * (qp[:, 0] - s.pattern.centre_px[0])) / s.pattern.pitch_px
-
-
 def test_pieces_on_a_scene_are_those_of_the_second_linking_for_almost_every_sample(staged, monkeypatch):
     s, model, obs, lab = staged
     assert obs.segment_linked is not None and obs.segment_linked.shape == (len(obs.q),)
@@ -156,9 +147,9 @@ def test_pieces_on_a_scene_are_those_of_the_second_linking_for_almost_every_samp
     la, lb = np.isfinite(a.index), np.isfinite(b.index)
     assert lb.sum() >= 0.995 * la.sum()
     fam = np.asarray(obs.family)
-    true = _true_index(s, b.q, fam)
+    true = true_index(s.truth, s.pattern, b.q, fam)
     ok_b = np.abs(b.index[lb] - true[lb]) < 0.5
-    ok_a = np.abs(a.index[la] - _true_index(s, a.q, fam)[la]) < 0.5
+    ok_a = np.abs(a.index[la] - true_index(s.truth, s.pattern, a.q, fam)[la]) < 0.5
     known_b = np.isfinite(true[lb])
     assert ok_b[known_b].mean() >= ok_a.mean() - 0.001
     assert ok_b[known_b].mean() > 0.99

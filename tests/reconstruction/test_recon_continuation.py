@@ -9,6 +9,7 @@ import pytest
 from reconstruction.extraction import extract_grid, sigma_for, ExtractOptions
 from reconstruction.labelling import LabelOptions, TraceOptions, label_epipolar, label_samples
 from reconstruction.rigmodel import UNLABELLED, rig_model
+from tests.reconstruction._truth import true_index
 
 
 #: the extraction these scenarios were measured with: without decision 0120's shared arms, which find junctions in
@@ -34,15 +35,6 @@ def _samples(s, model, obs, labels, **trace):
     return label_samples(obs, labels, sigma_px=float(obs.stats.get("sigma_px", sigma_for(model, ExtractOptions()))),
                          seed_radius_px=float(obs.stats["junction_radius_px"]), options=TraceOptions(**trace), model=model,
                          depth_range_mm=s.depth_range_mm, image=s.image, line_width_px=model.line_width_cam_px)
-
-
-def _true_index(s, q: np.ndarray, fam: np.ndarray) -> np.ndarray:
-    import cv2
-
-    m = q.astype(np.float32).reshape(-1, 1, 2)
-    qp = cv2.remap(s.truth.q_proj.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderValue=np.nan).reshape(-1, 2)
-    n = np.where(fam == 1, s.pattern.n1, s.pattern.n2)
-    return ((qp[:, 1] - s.pattern.centre_px[1]) - n * (qp[:, 0] - s.pattern.centre_px[0])) / s.pattern.pitch_px
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +66,7 @@ def test_lines_are_continued_into_a_patch_without_labelled_junctions_with_their_
     assert on.stats["samples_continued"] > 100
     # every sample that continuation (and the gap filling after it) added is on its true line
     new = np.isfinite(on.index) & ~np.isfinite(off.index)
-    true = _true_index(s, on.q[new], obs.family[new])
+    true = true_index(s.truth, s.pattern, on.q[new], obs.family[new])
     known = np.isfinite(true)
     assert known.mean() > 0.95
     assert np.max(np.abs(true[known] - on.index[new][known])) < 0.3

@@ -14,6 +14,7 @@ from reconstruction._continuation_kernels import facing_links
 from reconstruction._link_kernels import facing_links_mid
 from reconstruction.continuation import crossing_gap_px
 from reconstruction.rigmodel import UNLABELLED
+from tests.reconstruction._truth import true_index
 
 # the helpers of the continuation test (stages, label_samples with options, the true line index)
 _spec = importlib.util.spec_from_file_location("_cont_helpers", Path(__file__).with_name("test_recon_continuation.py"))
@@ -55,7 +56,7 @@ def test_lines_are_continued_across_gaps_longer_than_the_junction_step_with_thei
     assert n_new > n_old + 0.5 * inside.sum(), (n_old, n_new, int(inside.sum()))
     # every sample labelled in the patch is on its true line
     got = np.isfinite(new.index) & inside
-    true = _h._true_index(s, new.q[got], obs.family[got])
+    true = true_index(s.truth, s.pattern, new.q[got], obs.family[got])
     known = np.isfinite(true)
     assert known.mean() > 0.95
     assert np.max(np.abs(true[known] - new.index[got][known])) < 0.3
@@ -77,7 +78,7 @@ def test_a_wrong_index_is_mostly_rejected_by_the_crossing_check(dense_hole, colu
     def wrong(**trace) -> int:
         res = _h._samples(s, model, obs, shifted, **trace)
         new = np.isfinite(res.index) & ~np.isfinite(base.index) & (obs.family == family)
-        true = _h._true_index(s, res.q[new], obs.family[new])
+        true = true_index(s.truth, s.pattern, res.q[new], obs.family[new])
         return int((np.abs(true - res.index[new]) > 0.3).sum())
 
     unchecked = wrong(continue_tol_px=1e9)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from reconstruction.rigmodel import UNLABELLED
+from tests.reconstruction._truth import true_index
 
 _spec = importlib.util.spec_from_file_location("_cont_helpers_0074", Path(__file__).with_name("test_recon_continuation.py"))
 _h = importlib.util.module_from_spec(_spec)
@@ -38,7 +39,7 @@ def _new_right_wrong(s, obs, labels, **trace) -> tuple[int, int, int]:
     before = _h._samples(s, model_of(s), obs, labels, cross_rounds_after=0, **trace)
     after = _h._samples(s, model_of(s), obs, labels, **trace)
     sel = np.isfinite(after.index) & ~np.isfinite(before.index)
-    true = _h._true_index(s, after.q[sel], obs.family[sel])
+    true = true_index(s.truth, s.pattern, after.q[sel], obs.family[sel])
     known = np.isfinite(true)
     err = np.abs(true[known] - after.index[sel][known])
     return int(sel.sum()), int((err < 0.3).sum()), int((err >= 0.3).sum())

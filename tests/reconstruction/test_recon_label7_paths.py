@@ -9,7 +9,6 @@
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 
 import numpy as np
@@ -17,7 +16,6 @@ import pytest
 
 from reconstruction import _label_kernels as K
 from reconstruction import labelling as L
-from reconstruction import piece_seeds as PS
 from reconstruction.extraction import ExtractOptions, extract_grid, sigma_for
 from reconstruction.geometry import camera_rays_proj
 from reconstruction.labelling import (LEFT_OUT_REASONS, LabelOptions, TraceOptions, _choose_offset, _groups, _outlier_limit,

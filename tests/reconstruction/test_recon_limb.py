@@ -17,7 +17,7 @@ from reconstruction.limb_lines import _NONE, _ROWS, _by_rounds, _crossings, _k_a
 from reconstruction.rigmodel import UNLABELLED, rig_model
 
 from tests.reconstruction.test_recon_limb_outer import one_object_around
-from tests.reconstruction.test_recon_surface_labels import _object_at, _true_index
+from tests.reconstruction._truth import object_at, true_index
 
 
 def _line(x0: float, x1: float, y: float, step: float = 1.0) -> np.ndarray:
@@ -145,7 +145,7 @@ def test_limb_band_gets_its_true_indices(stage16):
     on = _run(stage16, True)
     assert on.stats["samples_beside_lines"] >= 150, on.stats["samples_beside_lines"]  # (258 measured)
     new = np.isfinite(on.index) & ~np.isfinite(off.index)
-    t = _true_index(s.truth, s.pattern, obs.q[new], np.asarray(obs.family)[new])
+    t = true_index(s.truth, s.pattern, obs.q[new], np.asarray(obs.family)[new])
     ok = np.isfinite(t)
     assert ok.mean() > 0.95
     assert np.all(np.abs(t[ok] - on.index[new][ok]) < 0.3), np.abs(t[ok] - on.index[new][ok]).max()
@@ -161,16 +161,16 @@ def test_labels_beside_the_sphere_silhouette_are_true(stage16, keep_object):
     (measured: 305 and 323 samples from the step, 464 and 303 new samples on the other object)."""
     s, model, obs, lab, sigma = stage16
     labels = lab.copy()
-    labels[_object_at(s.truth, obs.q_junction) != keep_object] = UNLABELLED
+    labels[object_at(s.truth, obs.q_junction) != keep_object] = UNLABELLED
     stage = (s, model, obs, labels, sigma)
     off = _run(stage, False)
     on = _run(stage, True)
     assert on.stats["samples_beside_lines"] >= 150, on.stats["samples_beside_lines"]
     new = np.isfinite(on.index) & ~np.isfinite(off.index)
-    other = _object_at(s.truth, obs.q) != keep_object
+    other = object_at(s.truth, obs.q) != keep_object
     assert np.sum(new & other) >= 100
     new &= one_object_around(s.truth, obs.q)  # the bilinear truth mixes two surfaces within 1 px of the silhouette (decision 0106)
-    t = _true_index(s.truth, s.pattern, obs.q[new], np.asarray(obs.family)[new])
+    t = true_index(s.truth, s.pattern, obs.q[new], np.asarray(obs.family)[new])
     ok = np.isfinite(t)
     assert ok.mean() > 0.95
     assert np.all(np.abs(t[ok] - on.index[new][ok]) < 0.3), np.abs(t[ok] - on.index[new][ok]).max()
@@ -182,7 +182,7 @@ def _captured_call(stage, keep_object=None):
     s, model, obs, lab, sigma = stage
     if keep_object is not None:
         lab = lab.copy()
-        lab[_object_at(s.truth, obs.q_junction) != keep_object] = UNLABELLED
+        lab[object_at(s.truth, obs.q_junction) != keep_object] = UNLABELLED
     got = []
     real = labelling_module.label_beside_lines
 

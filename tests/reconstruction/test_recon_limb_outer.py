@@ -13,15 +13,15 @@ from reconstruction.labelling import LabelOptions, TraceOptions, _sample_grid, l
 from reconstruction.limb_lines import _k_end_rows, _k_write_ends
 from reconstruction.rigmodel import rig_model
 
-from tests.reconstruction.test_recon_surface_labels import _object_at, _true_index
+from tests.reconstruction._truth import object_at, true_index
 
 
 def one_object_around(truth, q: np.ndarray) -> np.ndarray:
     """True where the truth's pixels within 1 px of each point (the four diagonal neighbours and the point) show
-    one object: there `_true_index`'s bilinear look-up does not mix two surfaces' projector positions across a
+    one object: there `true_index`'s bilinear look-up does not mix two surfaces' projector positions across a
     silhouette (decision 0106: a sample 1.3 px from the sphere's silhouette read −13.62 where its own pixel is
     −14.04)."""
-    ids = [_object_at(truth, q + d) for d in ((0.0, 0.0), (-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0))]
+    ids = [object_at(truth, q + d) for d in ((0.0, 0.0), (-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0))]
     return np.all([i == ids[0] for i in ids[1:]], axis=0)
 
 
@@ -118,7 +118,7 @@ def test_limb_ends_take_their_true_indices(stage16_outer):
     assert new.sum() >= 10, new.sum()  # (measured: see decision 0106)
     assert np.sum(np.isfinite(off.index) & ~np.isfinite(on.index)) == 0
     assert on.stats["samples_beside_lines"] > off.stats["samples_beside_lines"]
-    t = _true_index(s.truth, s.pattern, obs.q[new], np.asarray(obs.family)[new])
+    t = true_index(s.truth, s.pattern, obs.q[new], np.asarray(obs.family)[new])
     ok = np.isfinite(t)
     assert ok.mean() > 0.9
     assert np.all(np.abs(t[ok] - on.index[new][ok]) < 0.3), np.abs(t[ok] - on.index[new][ok]).max()
@@ -150,7 +150,7 @@ def test_ends_beside_the_sphere_silhouette_are_true(stage16_outer, keep_object):
 
     s, model, obs, lab, sigma = stage16_outer
     labels = lab.copy()
-    labels[_object_at(s.truth, obs.q_junction) != keep_object] = UNLABELLED
+    labels[object_at(s.truth, obs.q_junction) != keep_object] = UNLABELLED
     stage = (s, model, obs, labels, sigma)
     off = _labels(stage, beside_lines_ends=False)
     on = _labels(stage)
@@ -158,7 +158,7 @@ def test_ends_beside_the_sphere_silhouette_are_true(stage16_outer, keep_object):
     assert new.sum() >= 10, new.sum()
     qn, fn, kn = obs.q[new], np.asarray(obs.family)[new], on.index[new]
     clean = one_object_around(s.truth, qn)
-    t = _true_index(s.truth, s.pattern, qn[clean], fn[clean])
+    t = true_index(s.truth, s.pattern, qn[clean], fn[clean])
     assert np.all(np.isfinite(t)) and np.all(np.abs(t - kn[clean]) < 0.3), np.abs(t - kn[clean]).max()
-    t_px = _true_index(s.truth, s.pattern, np.round(qn[~clean]), fn[~clean])
+    t_px = true_index(s.truth, s.pattern, np.round(qn[~clean]), fn[~clean])
     assert np.all(np.abs(t_px - kn[~clean]) < 0.3), t_px

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import cv2
 import numpy as np
 import pytest
 
@@ -14,19 +13,12 @@ from reconstruction.labelling import LabelOptions, TraceOptions, label_epipolar,
 from reconstruction.piece_junctions import _k_assoc_by_node, _k_cluster_hash, _k_components, _k_nearest_hash, label_piece_junctions
 from reconstruction.rigmodel import UNLABELLED, rig_model
 from tests.reconstruction._piece_junctions_reference import _k_associate, _k_cluster, _label_piece_junctions_reference
+from tests.reconstruction._truth import true_index
 
 # the step (off by default) measured on its own: the steps that also fill a hole in the junction labels (the
 # continuation and decision 0089's piece seeds, both before it, and decision 0103's lines beside labelled lines,
 # after it) off
 _ALONE = {"continue_lines": False, "piece_seeds": False, "piece_junctions": True, "beside_lines": False}
-
-
-def _true_index(s, q: np.ndarray, fam: np.ndarray) -> np.ndarray:
-    """The fractional index of the line of each sample's family that the truth's projector position lies on."""
-    m = q.astype(np.float32).reshape(-1, 1, 2)
-    qp = cv2.remap(s.truth.q_proj.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderValue=np.nan).reshape(-1, 2)
-    n = np.where(fam == 1, s.pattern.n1, s.pattern.n2)
-    return ((qp[:, 1] - s.pattern.centre_px[1]) - n * (qp[:, 0] - s.pattern.centre_px[0])) / s.pattern.pitch_px
 
 
 def _samples(s, model, obs, labels, debug=None, **trace):
@@ -78,7 +70,7 @@ def test_a_patch_without_junctions_is_labelled_from_the_crossings_of_its_pieces(
     assert on.stats["samples_piece_junctions"] > 100
     # every sample the step (and the gap filling after it) added is on its true line
     new = np.isfinite(on.index) & ~np.isfinite(off.index)
-    true = _true_index(s, on.q[new], obs.family[new])
+    true = true_index(s.truth, s.pattern, on.q[new], obs.family[new])
     known = np.isfinite(true)
     assert known.mean() > 0.95
     assert np.max(np.abs(true[known] - on.index[new][known])) < 0.3
@@ -86,8 +78,8 @@ def test_a_patch_without_junctions_is_labelled_from_the_crossings_of_its_pieces(
     xy, L = dbg["xy"], dbg["labels"]
     lab = L[:, 0] != UNLABELLED
     assert lab.sum() > 30
-    ti = _true_index(s, xy[lab], np.ones(int(lab.sum()), np.intp))
-    tj = _true_index(s, xy[lab], np.full(int(lab.sum()), 2, np.intp))
+    ti = true_index(s.truth, s.pattern, xy[lab], np.ones(int(lab.sum()), np.intp))
+    tj = true_index(s.truth, s.pattern, xy[lab], np.full(int(lab.sum()), 2, np.intp))
     assert np.all(np.abs(ti - L[lab, 0]) < 0.25) and np.all(np.abs(tj - L[lab, 1]) < 0.25)
     # the distance from the lines' centres, in line spacings: a node at the crossing is on both lines
     err = np.hypot(ti - L[lab, 0], tj - L[lab, 1])
@@ -98,7 +90,7 @@ def _missing_line(s):
     """The hole scene with one j-line's samples removed across the hole (family 0)."""
     model, obs, labels, inside, centre, radius = _hole(s, 4.0)
     fam = np.asarray(obs.family).copy()
-    tj = _true_index(s, obs.q, np.full(len(obs.q), 2, np.intp))
+    tj = true_index(s.truth, s.pattern, obs.q, np.full(len(obs.q), 2, np.intp))
     j0 = int(np.round(np.nanmedian(tj[inside & (fam == 2)])))
     gone = (fam == 2) & (np.abs(tj - j0) < 0.5) & (np.hypot(*(obs.q - centre).T) < radius + model.junction_step_cam_px)
     fam[gone] = 0
@@ -116,7 +108,7 @@ def test_a_missing_line_does_not_shift_the_labels_across_it(small_scene):
     on = _samples(s, model, obs2, labels)
     new = np.isfinite(on.index) & ~np.isfinite(off.index)
     assert new.sum() > 200  # (438 measured; one component rejected by an anchor)
-    true = _true_index(s, on.q[new], fam[new])
+    true = true_index(s.truth, s.pattern, on.q[new], fam[new])
     known = np.isfinite(true)
     assert np.max(np.abs(true[known] - on.index[new][known])) < 0.3
 

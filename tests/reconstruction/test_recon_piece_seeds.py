@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import cv2
 import numpy as np
 import pytest
 
@@ -14,23 +13,7 @@ from reconstruction.extraction import ExtractOptions, extract_grid, sigma_for
 from reconstruction.labelling import LabelOptions, TraceOptions, label_epipolar, label_samples
 from reconstruction.piece_seeds import _SIN_MIN_CROSSING
 from reconstruction.rigmodel import UNLABELLED, rig_model
-
-
-def _true_index(truth, pattern, q: np.ndarray, fam: np.ndarray) -> np.ndarray:
-    """The fractional index of the line of each sample's family that the truth's projector position lies on."""
-    if len(q) == 0:
-        return np.zeros(0)
-    m = q.astype(np.float32).reshape(-1, 1, 2)
-    qp = cv2.remap(truth.q_proj.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderValue=np.nan).reshape(-1, 2)
-    n = np.where(fam == 1, pattern.n1, pattern.n2)
-    return ((qp[:, 1] - pattern.centre_px[1]) - n * (qp[:, 0] - pattern.centre_px[0])) / pattern.pitch_px
-
-
-def _object_at(truth, q: np.ndarray) -> np.ndarray:
-    if len(q) == 0:
-        return np.zeros(0)
-    m = q.astype(np.float32).reshape(-1, 1, 2)
-    return cv2.remap(truth.object_id.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_NEAREST).ravel()
+from tests.reconstruction._truth import object_at, true_index
 
 
 def _run(procam, pattern, image, depth_range, keep_junction):
@@ -64,7 +47,7 @@ def test_pieces_seeded_at_one_end_lie_on_their_true_line(small_scene):
     # the other steps are unchanged where piece_seeds labelled nothing new
     both = np.isfinite(off.index)
     assert np.all(np.isfinite(on.index[both]))
-    t = _true_index(s.truth, s.pattern, obs.q[new], np.asarray(obs.family)[new])
+    t = true_index(s.truth, s.pattern, obs.q[new], np.asarray(obs.family)[new])
     ok = np.isfinite(t)
     assert ok.mean() > 0.95
     assert np.all(np.abs(t[ok] - on.index[new][ok]) < 0.3), np.abs(t[ok] - on.index[new][ok]).max()
@@ -133,13 +116,13 @@ def test_pieces_beyond_a_depth_edge_stay_unlabelled(collinear_plate):
     procam, pattern, image, truth = collinear_plate
 
     def on_plate(qj):
-        return _object_at(truth, qj) > 0
+        return object_at(truth, qj) > 0
 
     obs, off, on = _run(procam, pattern, image, _DEPTH, on_plate)
     new = np.isfinite(on.index) & ~np.isfinite(off.index)
-    plane = _object_at(truth, obs.q) == 0
+    plane = object_at(truth, obs.q) == 0
     assert not np.any(new & plane), int(np.sum(new & plane))
-    t = _true_index(truth, pattern, obs.q[new], np.asarray(obs.family)[new])
+    t = true_index(truth, pattern, obs.q[new], np.asarray(obs.family)[new])
     ok = np.isfinite(t)
     assert np.all(np.abs(t[ok] - on.index[new][ok]) < 0.3)
 
@@ -226,7 +209,6 @@ def test_a_piece_beyond_a_silhouette_is_not_labelled_from_one_crossing(confirm_f
     """The near end's crossing is a true junction of the plate (i, 6) and passes the check on line i's sheet, so
     one-sided evidence labels the plane's piece 6 (its true line is 0: decision 0049's error). Its far crossing,
     the plane's junction (i', 0), lands on sheet 6 off the plate's next line i ± 1: rejected."""
-    from calibration.models import Intrinsics, ProCam, look_at
     from reconstruction.labelling import _sample_grid
     from reconstruction.patterns import GridPattern
     from reconstruction.piece_seeds import seed_one_sided

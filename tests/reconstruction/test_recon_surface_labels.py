@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import cv2
 import numpy as np
 import pytest
 
@@ -14,27 +13,11 @@ from reconstruction.extraction import ExtractOptions, extract_grid, sigma_for
 from reconstruction.labelling import LabelOptions, TraceOptions, _sample_grid, label_epipolar, label_samples
 from reconstruction.rigmodel import UNLABELLED, rig_model
 from reconstruction.surface_labels import _k_cell_sums, _k_fit_planes, _k_support, label_from_surface
+from tests.reconstruction._truth import object_at, true_index
 
 # the other steps that label pieces without junctions are off, so that the surface labels have work to do
 _ALONE = dict(continue_lines=False, piece_seeds=False, piece_junctions=False, cross_rounds=0, cross_rounds_after=0,
               beside_lines_ends=False)  # decision 0106: an end is left to the fillings once a step here labels its facing piece
-
-
-def _true_index(truth, pattern, q: np.ndarray, fam: np.ndarray) -> np.ndarray:
-    """The fractional index of the line of each sample's family that the truth's projector position lies on."""
-    if len(q) == 0:
-        return np.zeros(0)
-    m = q.astype(np.float32).reshape(-1, 1, 2)
-    qp = cv2.remap(truth.q_proj.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderValue=np.nan).reshape(-1, 2)
-    n = np.where(fam == 1, pattern.n1, pattern.n2)
-    return ((qp[:, 1] - pattern.centre_px[1]) - n * (qp[:, 0] - pattern.centre_px[0])) / pattern.pitch_px
-
-
-def _object_at(truth, q: np.ndarray) -> np.ndarray:
-    if len(q) == 0:
-        return np.zeros(0)
-    m = q.astype(np.float32).reshape(-1, 1, 2)
-    return cv2.remap(truth.object_id.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_NEAREST).ravel()
 
 
 def _synthetic_grid(rng, n=400, cell=7.0):
@@ -149,7 +132,7 @@ def test_band_without_junction_labels_gets_its_true_indices(stage):
     assert on.stats["samples_surface_labels"] >= 300, on.stats["samples_surface_labels"]  # (628 measured)
     new = np.isfinite(on.index) & ~np.isfinite(off.index)
     assert np.all(np.isfinite(on.index[np.isfinite(off.index)]))
-    t = _true_index(s.truth, s.pattern, obs.q[new], np.asarray(obs.family)[new])
+    t = true_index(s.truth, s.pattern, obs.q[new], np.asarray(obs.family)[new])
     ok = np.isfinite(t)
     assert ok.mean() > 0.95
     assert np.all(np.abs(t[ok] - on.index[new][ok]) < 0.3), np.abs(t[ok] - on.index[new][ok]).max()
@@ -161,11 +144,11 @@ def test_no_label_across_the_sphere_silhouette(stage, keep_object):
     the silhouette have labelled neighbours on one side only, of another surface; none of them is labelled."""
     s, model, obs, lab, _ = stage
     labels = lab.copy()
-    labels[_object_at(s.truth, obs.q_junction) != keep_object] = UNLABELLED
+    labels[object_at(s.truth, obs.q_junction) != keep_object] = UNLABELLED
     off = _run(stage, labels, False, **_ALONE)
     on = _run(stage, labels, True, **_ALONE)
     new = np.isfinite(on.index) & ~np.isfinite(off.index)
-    assert not np.any(new & (_object_at(s.truth, obs.q) != keep_object)), int(np.sum(new & (_object_at(s.truth, obs.q) != keep_object)))
+    assert not np.any(new & (object_at(s.truth, obs.q) != keep_object)), int(np.sum(new & (object_at(s.truth, obs.q) != keep_object)))
 
 
 def test_piece_off_the_predicted_line_is_left_out(stage, monkeypatch):

@@ -20,6 +20,7 @@ from reconstruction.extraction import ExtractOptions, extract_grid, sigma_for
 from reconstruction.labelling import LabelOptions, TraceOptions, label_epipolar, label_samples
 from reconstruction.patterns import GridPattern
 from reconstruction.rigmodel import UNLABELLED, rig_model
+from tests.reconstruction._truth import true_index
 
 DEPTH_RANGE = (500.0, 1200.0)
 
@@ -56,13 +57,6 @@ def _render(procam, objects):
 
     return render(procam, Scene(objects=objects), PATTERN.render(800, 600), options=RenderOptions(noise_grey=2.0, supersample=2),
                   rng=np.random.default_rng(0))
-
-
-def _true_index(truth, q: np.ndarray, fam: np.ndarray) -> np.ndarray:
-    m = q.astype(np.float32).reshape(-1, 1, 2)
-    qp = cv2.remap(truth.q_proj.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderValue=np.nan).reshape(-1, 2)
-    n = np.where(fam == 1, PATTERN.n1, PATTERN.n2)
-    return ((qp[:, 1] - PATTERN.centre_px[1]) - n * (qp[:, 0] - PATTERN.centre_px[0])) / PATTERN.pitch_px
 
 
 def _labels(procam, image):
@@ -124,13 +118,13 @@ def test_a_trace_does_not_carry_its_index_across_a_silhouette_onto_a_collinear_l
     on = _samples(model, obs, labels, image)
 
     def wrong(sl):
-        t = _true_index(truth, sl.q, obs.family)
+        t = true_index(truth, PATTERN, sl.q, obs.family)
         return np.isfinite(sl.index) & np.isfinite(t) & (np.abs(t - sl.index) > 0.5)
 
     # the leak: without the check, plane samples on line 0 next to the silhouette carry the plate's index 6
     leaked = wrong(off) & near
     assert leaked.sum() >= 8, int(leaked.sum())
-    t_off = _true_index(truth, off.q, obs.family)
+    t_off = true_index(truth, PATTERN, off.q, obs.family)
     assert np.all(off.index[leaked] == 6)
     assert (np.abs(t_off[leaked]) < 0.3).sum() >= 8  # on the plane's line 0 (the truth mixes the two at the edge pixel)
     # with it: no wrong label next to the edge, and the plate's line keeps its label up to the edge
@@ -163,7 +157,7 @@ def test_steep_continuous_surfaces_keep_their_labels(steep_surfaces):
     image, truth, model, obs, labels = steep_surfaces
     off = _samples(model, obs, labels, image, far_end_check=False)
     on = _samples(model, obs, labels, image)
-    t = _true_index(truth, off.q, obs.family)
+    t = true_index(truth, PATTERN, off.q, obs.family)
     right = np.isfinite(off.index) & np.isfinite(t) & (np.abs(t - off.index) <= 0.5)
     assert right.sum() > 5000
     # on the sphere and the box many labelled samples lie on steep faces (seen at more than 60° from the view)
