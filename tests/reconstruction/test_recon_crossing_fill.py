@@ -16,6 +16,7 @@ from reconstruction.labelling import LabelOptions, TraceOptions, label_epipolar,
 from reconstruction.patterns import GridPattern
 from reconstruction.pipeline import ReconstructOptions, reconstruct
 from reconstruction.rigmodel import UNLABELLED, rig_model
+from tests.reconstruction._scenes import PINHOLE_DEPTH_RANGE, PINHOLE_PATTERN, collinear_plate
 
 
 def _read(img: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -134,54 +135,7 @@ def test_the_paper_labeller_gets_no_crossing_points(small_scene):
 # (the construction of test_recon_trace_depth_edges.py, decision 0084: the one case where a line on two
 # surfaces looks like one straight line in the image, so the tangent tests cannot see the edge)
 
-DEPTH_RANGE = (500.0, 1200.0)
-PATTERN = GridPattern(pitch_px=24.0, lines=25, centre_px=(399.5, 299.5), line_width_px=3.0)
-
-
-def _procam() -> ProCam:
-    cam = Intrinsics(640, 480, np.array([[900.0, 0, 319.5], [0, 900.0, 239.5], [0, 0, 1]]), np.zeros(5))
-    prj = Intrinsics(800, 600, np.array([[1000.0, 0, 399.5], [0, 1000.0, 299.5], [0, 0, 1]]), np.zeros(5))
-    t = np.array([180.0, 60.0, 40.0])
-    return ProCam(cam, prj, look_at(t, np.array([0, 0, 800.0])), t)
-
-
-def _meet(n1, d1, n2, d2):
-    u = np.cross(n1, n2)
-    u /= np.linalg.norm(u)
-    return np.linalg.solve(np.array([n1, n2, u]), [d1, d2, 0.0]), u
-
-
-def _project(procam: ProCam, X: np.ndarray) -> np.ndarray:
-    x = procam.R_proj_cam.T @ (X - procam.t_proj_cam)
-    return procam.camera.K[:2, :2] @ (x[:2] / x[2]) + procam.camera.K[:2, 2]
-
-
-def _collinear_plate():
-    """Image, truth and the edge's camera pixel: plane at ~940 mm, a 100 × 100 × 20 mm plate ~240 mm in front
-    whose line j = 6 is collinear in the image with the plane's line j = 0, both equally bright."""
-    from drivers.sim import Box, Plane, RenderOptions, Scene, render
-
-    procam = _procam()
-    C = procam.t_proj_cam
-    n_bg = np.array([0.1, -0.2, -1.0])
-    n_bg /= np.linalg.norm(n_bg)
-    p_bg = np.array([0, 0, 950.0])
-    sheet = lambda k: np.array([PATTERN.n2, -1.0, k * PATTERN.pitch_px / 1000.0])  # noqa: E731 - light sheet j = k
-    X2, u2 = _meet(sheet(0), 0.0, n_bg, n_bg @ p_bg)
-    n_cam = np.cross(X2 - C, u2)
-    n_cam /= np.linalg.norm(n_cam)
-    X1, u1 = _meet(sheet(6), 0.0, n_cam, n_cam @ C)
-    Xc = X1 + ((np.array([0, 0, 700.0]) - X1) @ u1) * u1
-    v = C - Xc
-    n_plate = v - (v @ u1) * u1
-    n_plate /= np.linalg.norm(n_plate)
-    R = np.column_stack([u1, np.cross(n_plate, u1), n_plate])
-    cos_plate = n_plate @ (-Xc / np.linalg.norm(Xc))
-    cos_bg = abs(n_bg @ (-X2 / np.linalg.norm(X2)))
-    plate = Box(Xc - n_plate * 10.0, np.array([100.0, 100.0, 20.0]), R, albedo=min(1.0, 0.8 * cos_bg / cos_plate))
-    image, truth = render(procam, Scene(objects=[Plane(p_bg, n_bg), plate]), PATTERN.render(800, 600),
-                          options=RenderOptions(noise_grey=2.0, supersample=2), rng=np.random.default_rng(0))
-    return procam, image, truth, _project(procam, Xc + 50.0 * u1)
+DEPTH_RANGE, PATTERN = PINHOLE_DEPTH_RANGE, PINHOLE_PATTERN
 
 
 @pytest.fixture(scope="module")
@@ -190,7 +144,7 @@ def plate_with_a_gap_at_the_edge():
     the plane's line 0 carries the plate's index 6 past the silhouette), and the samples within 2.5 px of the
     edge point taken out (a gap at the silhouette, as the cut-profile test leaves one): a gap of line 6 whose
     sides are collinear and carry one index, with no crossing in it."""
-    procam, image, truth, edge = _collinear_plate()
+    procam, image, truth, edge = collinear_plate()
     model, obs, labels, sigma, _sl = _stages(procam, PATTERN, image, DEPTH_RANGE)
     object_id = _read(truth.object_id, obs.q_junction)[:, 0]
     gone = (np.hypot(*(obs.q_junction - edge).T) < 2.0 * model.junction_step_cam_px) & (np.rint(object_id) == 0)

@@ -14,6 +14,8 @@ from reconstruction.labelling import LabelOptions, TraceOptions, label_epipolar,
 from reconstruction.piece_seeds import _SIN_MIN_CROSSING
 from reconstruction.rigmodel import UNLABELLED, rig_model
 from tests.reconstruction._truth import object_at, true_index
+from tests.reconstruction._scenes import PINHOLE_PATTERN, pinhole_procam, planes_meet
+from tests.reconstruction._scenes import collinear_plate as collinear_plate_scene
 
 
 def _run(procam, pattern, image, depth_range, keep_junction):
@@ -59,51 +61,10 @@ def test_pieces_seeded_at_one_end_lie_on_their_true_line(small_scene):
 _DEPTH = (500.0, 1200.0)
 
 
-def _pinholes():
-    from calibration.models import Intrinsics, ProCam, look_at
-
-    cam = Intrinsics(640, 480, np.array([[900.0, 0, 319.5], [0, 900.0, 239.5], [0, 0, 1]]), np.zeros(5))
-    prj = Intrinsics(800, 600, np.array([[1000.0, 0, 399.5], [0, 1000.0, 299.5], [0, 0, 1]]), np.zeros(5))
-    t = np.array([180.0, 60.0, 40.0])
-    return ProCam(cam, prj, look_at(t, np.array([0, 0, 800.0])), t)
-
-
-def _meet(n1, d1, n2, d2):
-    u = np.cross(n1, n2)
-    u /= np.linalg.norm(u)
-    return np.linalg.solve(np.array([n1, n2, u]), [d1, d2, 0.0]), u
-
-
 @pytest.fixture(scope="module")
 def collinear_plate():
-    from drivers.sim import Box, Plane, RenderOptions, Scene, render
-    from reconstruction.patterns import GridPattern
-
-    pattern = GridPattern(pitch_px=24.0, lines=25, centre_px=(399.5, 299.5), line_width_px=3.0)
-    procam = _pinholes()
-    C = procam.t_proj_cam
-
-    def sheet_j(k):
-        return np.array([pattern.n2, -1.0, k * pattern.pitch_px / 1000.0])
-
-    n_bg = np.array([0.1, -0.2, -1.0])
-    n_bg /= np.linalg.norm(n_bg)
-    p_bg = np.array([0, 0, 950.0])
-    X2, u2 = _meet(sheet_j(0), 0.0, n_bg, n_bg @ p_bg)
-    n_cam = np.cross(X2 - C, u2)
-    n_cam /= np.linalg.norm(n_cam)
-    X1, u1 = _meet(sheet_j(6), 0.0, n_cam, n_cam @ C)
-    Xc = X1 + ((np.array([0, 0, 700.0]) - X1) @ u1) * u1
-    v = C - Xc
-    n_plate = v - (v @ u1) * u1
-    n_plate /= np.linalg.norm(n_plate)
-    R = np.column_stack([u1, np.cross(n_plate, u1), n_plate])
-    cos_plate = n_plate @ (-Xc / np.linalg.norm(Xc))
-    cos_bg = abs(n_bg @ (-X2 / np.linalg.norm(X2)))
-    plate = Box(Xc - n_plate * 10.0, np.array([100.0, 100.0, 20.0]), R, albedo=min(1.0, 0.8 * cos_bg / cos_plate))
-    image, truth = render(procam, Scene(objects=[Plane(p_bg, n_bg), plate]), pattern.render(800, 600),
-                          options=RenderOptions(noise_grey=2.0, supersample=2), rng=np.random.default_rng(0))
-    return procam, pattern, image, truth
+    procam, image, truth, _edge = collinear_plate_scene()
+    return procam, PINHOLE_PATTERN, image, truth
 
 
 def test_pieces_beyond_a_depth_edge_stay_unlabelled(collinear_plate):
@@ -134,7 +95,7 @@ def test_pieces_beyond_a_depth_edge_stay_unlabelled(collinear_plate):
 def _image_line(procam, n_sheet, n_plane, d_plane, X_near, *, step_px=1.0):
     """The 3D line where a light sheet meets a plane, and a function giving its image point nearest X_near
     moved by s camera px along the image line."""
-    X0, u = _meet(n_sheet, 0.0, n_plane, d_plane)
+    X0, u = planes_meet(n_sheet, 0.0, n_plane, d_plane)
     X0 = X0 + ((X_near - X0) @ u) * u
 
     def proj(X):
@@ -158,10 +119,10 @@ def _synthetic_trap(pattern, procam):
     n_bg = np.array([0.1, -0.2, -1.0])
     n_bg /= np.linalg.norm(n_bg)
     d_bg = n_bg @ np.array([0, 0, 950.0])
-    X2, u2 = _meet(sheet2(0), 0.0, n_bg, d_bg)
+    X2, u2 = planes_meet(sheet2(0), 0.0, n_bg, d_bg)
     n_cam = np.cross(X2 - C, u2)
     n_cam /= np.linalg.norm(n_cam)
-    X1, u1 = _meet(sheet2(6), 0.0, n_cam, n_cam @ C)
+    X1, u1 = planes_meet(sheet2(6), 0.0, n_cam, n_cam @ C)
     Xc = X1 + ((np.array([0, 0, 700.0]) - X1) @ u1) * u1
     v = C - Xc
     n_pl = v - (v @ u1) * u1
@@ -214,7 +175,7 @@ def test_a_piece_beyond_a_silhouette_is_not_labelled_from_one_crossing(confirm_f
     from reconstruction.piece_seeds import seed_one_sided
 
     pattern = GridPattern(pitch_px=24.0, lines=25, centre_px=(399.5, 299.5), line_width_px=3.0)
-    procam = _pinholes()
+    procam = pinhole_procam()
     model = rig_model(procam, pattern, _DEPTH)
     q, fam, sid, piece, ts, tangent, index, seed_jid, p_trap, _ = _synthetic_trap(pattern, procam)
     radius = 0.6 * model.junction_step_cam_px

@@ -15,48 +15,14 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration.models import Intrinsics, ProCam, look_at
 from reconstruction.extraction import ExtractOptions, extract_grid, sigma_for
 from reconstruction.labelling import LabelOptions, TraceOptions, label_epipolar, label_samples
-from reconstruction.patterns import GridPattern
 from reconstruction.rigmodel import UNLABELLED, rig_model
+from tests.reconstruction._scenes import PINHOLE_DEPTH_RANGE, PINHOLE_PATTERN, pinhole_procam, render_pinhole
+from tests.reconstruction._scenes import collinear_plate as collinear_plate_scene
 from tests.reconstruction._truth import true_index
 
-DEPTH_RANGE = (500.0, 1200.0)
-
-
-def _procam() -> ProCam:
-    cam = Intrinsics(640, 480, np.array([[900.0, 0, 319.5], [0, 900.0, 239.5], [0, 0, 1]]), np.zeros(5))
-    prj = Intrinsics(800, 600, np.array([[1000.0, 0, 399.5], [0, 1000.0, 299.5], [0, 0, 1]]), np.zeros(5))
-    t = np.array([180.0, 60.0, 40.0])
-    return ProCam(cam, prj, look_at(t, np.array([0, 0, 800.0])), t)
-
-
-PATTERN = GridPattern(pitch_px=24.0, lines=25, centre_px=(399.5, 299.5), line_width_px=3.0)
-
-
-def _sheet_j(k: int) -> np.ndarray:
-    """Normal N of light sheet j = k (N·X = 0 in the projector frame): the line (y − n2·x)·f = k·pitch."""
-    return np.array([PATTERN.n2, -1.0, k * PATTERN.pitch_px / 1000.0])
-
-
-def _meet(n1, d1, n2, d2):
-    """The line where planes n1·X = d1 and n2·X = d2 meet: a point and the unit direction."""
-    u = np.cross(n1, n2)
-    u /= np.linalg.norm(u)
-    return np.linalg.solve(np.array([n1, n2, u]), [d1, d2, 0.0]), u
-
-
-def _project(procam: ProCam, X: np.ndarray) -> np.ndarray:
-    x = procam.R_proj_cam.T @ (X - procam.t_proj_cam)
-    return procam.camera.K[:2, :2] @ (x[:2] / x[2]) + procam.camera.K[:2, 2]
-
-
-def _render(procam, objects):
-    from drivers.sim import RenderOptions, Scene, render
-
-    return render(procam, Scene(objects=objects), PATTERN.render(800, 600), options=RenderOptions(noise_grey=2.0, supersample=2),
-                  rng=np.random.default_rng(0))
+DEPTH_RANGE, PATTERN = PINHOLE_DEPTH_RANGE, PINHOLE_PATTERN
 
 
 def _labels(procam, image):
@@ -81,27 +47,7 @@ def collinear_plate():
     The plane's junctions within two junction steps of the edge where the plate's line leaves it lose their
     labels (as on the paper rigs, where junctions are sparse): the trace from the plate's junctions then runs
     across the silhouette to the plane's next crossing."""
-    from drivers.sim import Box, Plane
-
-    procam = _procam()
-    C = procam.t_proj_cam
-    n_bg = np.array([0.1, -0.2, -1.0])
-    n_bg /= np.linalg.norm(n_bg)
-    p_bg = np.array([0, 0, 950.0])
-    X2, u2 = _meet(_sheet_j(0), 0.0, n_bg, n_bg @ p_bg)  # the plane's line j = 0
-    n_cam = np.cross(X2 - C, u2)  # the camera plane through it
-    n_cam /= np.linalg.norm(n_cam)
-    X1, u1 = _meet(_sheet_j(6), 0.0, n_cam, n_cam @ C)  # sheet 6 in that camera plane: the plate's line j = 6
-    Xc = X1 + ((np.array([0, 0, 700.0]) - X1) @ u1) * u1
-    v = C - Xc
-    n_plate = v - (v @ u1) * u1
-    n_plate /= np.linalg.norm(n_plate)
-    R = np.column_stack([u1, np.cross(n_plate, u1), n_plate])
-    cos_plate = n_plate @ (-Xc / np.linalg.norm(Xc))
-    cos_bg = abs(n_bg @ (-X2 / np.linalg.norm(X2)))
-    plate = Box(Xc - n_plate * 10.0, np.array([100.0, 100.0, 20.0]), R, albedo=min(1.0, 0.8 * cos_bg / cos_plate))
-    image, truth = _render(procam, [Plane(p_bg, n_bg), plate])
-    edge = _project(procam, Xc + 50.0 * u1)  # where the plate's line j = 6 leaves the plate (the lit side)
+    procam, image, truth, edge = collinear_plate_scene()
     model, obs, labels = _labels(procam, image)
     object_id = cv2.remap(truth.object_id.astype(np.float32), obs.q_junction[:, 0].astype(np.float32).reshape(-1, 1),
                           obs.q_junction[:, 1].astype(np.float32).reshape(-1, 1), cv2.INTER_NEAREST).ravel()
@@ -143,12 +89,12 @@ def steep_surfaces():
     60° to the view (its sides seen obliquely), every junction labelled as the labeller found it."""
     from drivers.sim import Box, Plane, Sphere
 
-    procam = _procam()
+    procam = pinhole_procam()
     a = np.deg2rad(60.0)
     R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
     objects = [Plane(np.array([0, 0, 950.0]), np.array([0.1, -0.2, -1.0])), Sphere(np.array([-40.0, 30.0, 780.0]), 70.0),
                Box(np.array([90.0, -20.0, 760.0]), np.array([80.0, 120.0, 80.0]), R)]
-    image, truth = _render(procam, objects)
+    image, truth = render_pinhole(objects)
     model, obs, labels = _labels(procam, image)
     return image, truth, model, obs, labels
 
@@ -173,7 +119,7 @@ def _steep(truth, q: np.ndarray) -> np.ndarray:
     m = q.astype(np.float32).reshape(-1, 1, 2)
     n = cv2.remap(truth.normal_proj.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_NEAREST).reshape(-1, 3)
     p = cv2.remap(truth.p_proj.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_NEAREST).reshape(-1, 3)
-    ray = p - _procam().t_proj_cam
+    ray = p - pinhole_procam().t_proj_cam
     c = np.abs((n * ray).sum(axis=1)) / np.linalg.norm(ray, axis=1)
     return np.isfinite(c) & (c < np.cos(np.deg2rad(60.0)))
 
