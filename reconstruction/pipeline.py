@@ -220,7 +220,8 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
             trace = replace(trace, piece_junctions=False, depth_range_labels=False)
         sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=trace, model=model,
                            depth_range_mm=(options.depth_min_mm, options.depth_max_mm), image=image,
-                           line_width_px=model.line_width_cam_px, prep=frame.prep, label_options=lo)
+                           line_width_px=model.line_width_cam_px, prep=frame.prep, label_options=lo,
+                           ambiguous_labels=lab.ambiguous_best)
     cp = None
     if sl is not None and options.labeller == "epipolar" and options.crossing.enabled:
         # points through crossings whose line is labelled on both sides (decision 0086); the paper labeller's
