@@ -105,17 +105,17 @@ def attached_pairs(q, fam, valid, qj, amb, amb_lab, jdir, radius, lateral):
 
 
 @njit
-def unlabel_conflicts(pair_s, pair_e, index, seed_jid, pos_of, piece, sid):
+def unlabel_conflicts(pair_s, pair_e, index, seed_jid, pos_of, piece, sid, protected):
     """Samples of the pairs labelled with another index than expected: their trace pieces (piece (T,) non-decreasing
     along the trace positions, sid (T,) the positions' samples, pos_of (P,) each sample's position or −1) lose their
-    labels (index NaN, seed_jid −1), and so does the sample itself when it is on no piece. Returns the number of
-    samples unlabelled."""
+    labels (index NaN, seed_jid −1), and so does the sample itself when it is on no piece; protected (P,) bool samples
+    are neither read nor unlabelled. Returns the number of samples unlabelled."""
     n_out = 0
     T = piece.shape[0]
     for k in range(pair_s.shape[0]):
         s = pair_s[k]
         v = index[s]
-        if not math.isfinite(v) or v == pair_e[k]:
+        if protected[s] or not math.isfinite(v) or v == pair_e[k]:
             continue
         p = pos_of[s]
         if p < 0:
@@ -132,7 +132,7 @@ def unlabel_conflicts(pair_s, pair_e, index, seed_jid, pos_of, piece, sid):
             hi += 1
         for t in range(lo, hi + 1):
             u = sid[t]
-            if math.isfinite(index[u]):
+            if math.isfinite(index[u]) and not protected[u]:
                 index[u] = np.nan
                 seed_jid[u] = -1
                 n_out += 1
@@ -141,9 +141,13 @@ def unlabel_conflicts(pair_s, pair_e, index, seed_jid, pos_of, piece, sid):
 
 class Guard:
     """The pairs of one frame, and the check (`__call__`) run after each labelling step of `label_samples`.
-    stats["samples_ambiguity_guard"] counts the samples it unlabelled (a sample unlabelled twice counts twice)."""
+    stats["samples_ambiguity_guard"] counts the samples it unlabelled (a sample unlabelled twice counts twice).
+    index: the samples' indices when the guard is made (after the labelled junctions' seeds have spread along their
+    pieces): those labelled then carry the index of a component the labeller accepted, stronger evidence than an
+    ambiguous component's best offset, and are protected (neither read nor unlabelled)."""
 
-    def __init__(self, q, fam, valid, q_junction, junction_dir, ambiguous_labels, radius_px: float, lateral_px: float):
+    def __init__(self, q, fam, valid, q_junction, junction_dir, ambiguous_labels, radius_px: float, lateral_px: float,
+                 index: np.ndarray | None = None):
         amb_all = np.asarray(ambiguous_labels, np.int64).reshape(-1, 2)
         from reconstruction.rigmodel import UNLABELLED
 
@@ -154,6 +158,7 @@ class Guard:
             amb, np.ascontiguousarray(amb_all[amb]), np.ascontiguousarray(junction_dir, np.float64).reshape(-1, 2, 2),
             float(radius_px), float(lateral_px))
         self.pos_of = None
+        self.protected = np.zeros(len(q), np.bool_) if index is None else np.isfinite(index)
 
     def __call__(self, index, seed_jid, piece, sid) -> int:
         if len(self.pair_s) == 0:
@@ -162,6 +167,6 @@ class Guard:
             from reconstruction._label_kernels import positions_of
 
             self.pos_of = positions_of(len(index), sid)
-        n = int(unlabel_conflicts(self.pair_s, self.pair_e, index, seed_jid, self.pos_of, piece, sid))
+        n = int(unlabel_conflicts(self.pair_s, self.pair_e, index, seed_jid, self.pos_of, piece, sid, self.protected))
         self.n += n
         return n

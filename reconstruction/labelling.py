@@ -900,6 +900,8 @@ class TraceOptions:
         junction's index under the component's best offset; otherwise its piece loses its label
         (`reconstruction.ambiguity_guard`, decision 0141: a line continued across a depth edge by a lattice vector
         along the epipolar lines). Needs `label_samples(..., ambiguous_labels=)`; it only ever removes labels.
+    ambiguity_guard_protect_seeded: the samples labelled by the labelled junctions' seeds (step 4, before any other
+        step) are neither read nor unlabelled by the guard: an accepted component outranks an ambiguous one's best.
     """
 
     mix_sigma: float = 2.0
@@ -940,6 +942,7 @@ class TraceOptions:
     depth_range_labels: bool = True
     depth_range_tol: float = 3.0
     ambiguity_guard: bool = True
+    ambiguity_guard_protect_seeded: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -1372,7 +1375,7 @@ def label_samples(
         if options.ambiguity_guard and ambiguous_labels is not None and len(ambiguous_labels) == len(lab):
             # sample labels an ambiguous junction component rules out (decision 0141): checked after every step
             guard = Guard(q, fam, valid, obs.q_junction, obs.junction_dir, ambiguous_labels, float(seed_radius_px),
-                          float(options.seed_lateral_px))
+                          float(options.seed_lateral_px), index if options.ambiguity_guard_protect_seeded else None)
             if len(guard.pair_s) == 0:
                 guard = None
 

@@ -66,7 +66,7 @@ def test_samples_off_the_junction_line_are_not_read():
     seed_jid = np.zeros(len(q), np.int64)
     from reconstruction._label_kernels import positions_of
 
-    unlabel_conflicts(s, e, index, seed_jid, positions_of(len(q), sid), piece, sid)
+    unlabel_conflicts(s, e, index, seed_jid, positions_of(len(q), sid), piece, sid, np.zeros(len(q), np.bool_))
     assert (index[:21] == 5.0).all()  # not read: kept
     assert np.isnan(index[21:42]).all()  # on junction 1's line with 5 instead of 4
 
