@@ -106,3 +106,18 @@ def test_seed_198_ghost_surface_taken_back():
     qp = sample_bilinear(truth.q_proj, frame.obs.q_junction[k])
     d = np.linalg.norm(qp - pattern.junction_uv(amb[k, 0], amb[k, 1]), axis=1)
     assert np.mean(d <= 2) >= 0.9
+
+
+def test_labels_spread_from_labelled_junctions_are_protected():
+    """Samples already labelled when the guard is made (the labelled junctions' seeds, spread along their pieces) are
+    neither read nor unlabelled; a later label on the same piece that conflicts is taken back around them."""
+    q, fam, piece, sid, qj, jdir, amb = _frame()
+    valid = np.ones(len(q), np.bool_)
+    index = np.full(len(q), np.nan)
+    index[:10] = 5.0  # piece 0's first half: spread from a labelled junction (conflicts with the best label 3)
+    g = Guard(q, fam, valid, qj, jdir, amb, radius_px=4.0, lateral_px=1.0, index=index)
+    seed_jid = np.zeros(len(q), np.int64)
+    assert g(index, seed_jid, piece, sid) == 0 and (index[:10] == 5.0).all()
+    index[10:21] = 5.0  # a later step labels the rest of the piece: pairs 10..14 conflict
+    assert g(index, seed_jid, piece, sid) == 11
+    assert (index[:10] == 5.0).all() and np.isnan(index[10:21]).all()
