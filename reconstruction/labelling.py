@@ -1275,7 +1275,10 @@ def _prepare_traces(obs: GridObservation, q: np.ndarray, fam: np.ndarray, cell: 
     trace position."""
     # the kept samples need no seed (`_label_kernels.kept_samples` only counts the seeds among them)
     k_idx, n_mix, _ = _k.kept_samples(valid, near_other, np.full(len(q), UNLABELLED, np.int64), UNLABELLED)
-    order, piece, ts, tangent = _trace_pieces(obs, q, fam, k_idx, cell, r, c, H, W, ridge, options)
+    if len(k_idx):
+        order, piece, ts, tangent = _trace_pieces(obs, q, fam, k_idx, cell, r, c, H, W, ridge, options)
+    else:  # nothing kept: label_samples builds no pieces either
+        order, piece, ts, tangent = np.zeros(0, np.intp), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2))
     sid = k_idx[order]
     pos_of = _k.positions_of(len(q), sid)
     drop = None

@@ -10,8 +10,8 @@ import dataclasses
 import numpy as np
 
 from reconstruction import _label_kernels as _k
-from reconstruction.labelling import (TraceOptions, _box3, _profile_drop_traces, _trace_pieces, label_epipolar, label_samples,
-                                      prepare_samples)
+from reconstruction.labelling import (TraceOptions, _box3, _prepare_traces, _profile_drop_traces, _trace_pieces, label_epipolar,
+                                      label_samples, prepare_samples)
 from reconstruction.pipeline import ReconstructOptions, extract_frame, finish_frame, reconstruct
 from reconstruction.rigmodel import UNLABELLED
 
@@ -143,3 +143,22 @@ def test_the_stage_times_stay_sane(small_scene_pitch16):
     assert set(ms) == {"model", "extract", "label", "triangulate", "total"}
     assert all(v >= 0 for v in ms.values()) and ms["extract"] > 0 and ms["label"] > 0
     assert abs(ms["total"] - (ms["model"] + ms["extract"] + ms["label"] + ms["triangulate"])) < 1e-9
+
+
+def test_no_kept_sample_gives_empty_traces_and_the_same_labels(small_scene_pitch16):
+    """Every valid sample in the mixing zone: no pieces in either stage, and label_samples labels only the snapped seeds."""
+    s = small_scene_pitch16
+    frame = extract_frame(s.image, s.procam, s.pattern, options=_options(s))
+    obs, lab, kw = _label_inputs(frame)
+    p = frame.prep
+    q = np.ascontiguousarray(obs.q, np.float64)
+    fam = np.asarray(obs.family).astype(np.intp)
+    tp = _prepare_traces(obs, q, fam, p.cell, p.valid, p.valid.copy(), p.r, p.c, p.H, p.W, p.blurred, p.ridge, TraceOptions(),
+                         kw["line_width_px"])
+    assert len(tp.k_idx) == 0 and len(tp.sid) == 0 and tp.n_mix == p.n_valid and tp.drop is None
+    assert (tp.pos_of == -1).all()
+    all_mixing = dataclasses.replace(p, near_other=p.valid.copy(), traces=None)
+    a = label_samples(obs, lab.labels, **kw, prep=all_mixing)
+    b = label_samples(obs, lab.labels, **kw, prep=dataclasses.replace(all_mixing, traces=tp))
+    np.testing.assert_array_equal(a.index, b.index)
+    assert a.stats == b.stats and a.stats["traces"] == 0 and a.stats["snapped_to_junction_line"] > 0
