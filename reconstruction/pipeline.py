@@ -48,7 +48,10 @@ class ReconstructOptions:
     (ray–light-plane), not only the junctions. extract, label: the stages' own options (label's depth
     range is replaced by the one here), trace: how line samples inherit their line's index; crossing:
     points through the crossings' gaps of lines labelled on both sides (decision 0086; default labeller only;
-    decision 0092's `trace.piece_junctions` is off with the paper labeller too)."""
+    decision 0092's `trace.piece_junctions` is off with the paper labeller too). traces_in_extraction: the line
+    samples' trace pieces and the cut-profile measure along them, which need no label, are built in the extraction
+    stage (`extract_frame`, decision 0140) so that the two stages' threads carry similar loads; off: in the label
+    stage, as before. The outputs are the same either way."""
 
     labeller: Literal["epipolar", "paper"] = "epipolar"
     depth_min_mm: float = 100.0
@@ -61,6 +64,7 @@ class ReconstructOptions:
     one_sided: OneSidedFillOptions = OneSidedFillOptions()  # decision 0099: a labelled end to its crossing (with `crossing` on)
     border: BorderFillOptions = BorderFillOptions()  # decision 0104: a labelled end to the image border (with `crossing` on)
     sheet_precision: SheetPrecisionOptions = SheetPrecisionOptions()  # decision 0131: samples on sheets along the epipolar lines
+    traces_in_extraction: bool = True  # decision 0140: the trace pieces (no label in them) built by extract_frame; outputs identical either way
 
     def __post_init__(self) -> None:
         if self.labeller not in ("epipolar", "paper"):
@@ -173,8 +177,10 @@ def extract_frame(
         # work, so that the two threads of a stream carry similar loads (decision 0107); the samples' bucket grid
         # too (decision 0115)
         sigma = _sigma(obs, model, options)
+        # the trace pieces and the cut-profile measure along them need no label either (decision 0140)
         prep = prepare_samples(obs, sigma_px=sigma, options=options.trace, image=image,
-                               grid_cell_px=trace_grid_cell_px(model, options.trace))
+                               grid_cell_px=trace_grid_cell_px(model, options.trace), traces=options.traces_in_extraction,
+                               line_width_px=model.line_width_cam_px)
         if options.labeller == "epipolar" and options.crossing.enabled:
             gcell = fill_grid_cell_px(sigma, float(_step_px(obs)), options.crossing)
             prep.grids[("family", float(gcell))] = family_grid(obs.q, obs.family, gcell)
