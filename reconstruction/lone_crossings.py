@@ -61,28 +61,65 @@ class LoneCrossingOptions:
     t_nodes: bool = True
 
 
-def _end_lines(q, sid, ts, a, b, trim_px):
-    """The two end lines of the piece at positions a … b − 1: (point (2, 2), outward unit direction (2, 2), fit RMS
-    (2,), end sample position (2, 2))."""
-    t = ts[a:b]
-    p = q[sid[a:b]]
-    pts, dirs, rms, ends = np.empty((2, 2)), np.empty((2, 2)), np.empty(2), np.empty((2, 2))
+def _end_lines(q, sid, piece, ts, starts, stops, open_mask, trim_px):
+    """The end lines of the open pieces (module doc, step 1), both ends of every piece: (point (Np, 2, 2), outward unit
+    direction (Np, 2, 2), fit RMS (Np, 2), end sample (Np, 2, 2), usable (Np, 2)); Np the number of pieces."""
+    n_p = len(starts)
+    pts = np.zeros((n_p, 2, 2))
+    dirs = np.zeros((n_p, 2, 2))
+    rms = np.zeros((n_p, 2))
+    ok = np.zeros((n_p, 2), bool)
+    ends = np.stack([q[sid[starts]], q[sid[stops - 1]]], axis=1)
+    on = np.flatnonzero(open_mask[piece])
+    pid = piece[on]
+    t = ts[on]
+    d_ends = (t - ts[starts[pid]], ts[stops[pid] - 1] - t)
+    near = (d_ends[0] <= 3.0 * trim_px) | (d_ends[1] <= 3.0 * trim_px)
+    on, pid = on[near], pid[near]
+    p = q[sid[on]]
+    d_ends = (d_ends[0][near], d_ends[1][near])
     for e in (0, 1):
-        d_end = (t - t[0]) if e == 0 else (t[-1] - t)
-        sel = (d_end >= trim_px) & (d_end <= 3.0 * trim_px)
-        if sel.sum() < 3:
-            sel = np.argsort(d_end)[: min(len(t), 5)]
-        x = p[sel]
-        c = x.mean(0)
-        u, s, vt = np.linalg.svd(x - c, full_matrices=False)
-        d = vt[0]
-        end = p[0] if e == 0 else p[-1]
-        inner = p[-1] if e == 0 else p[0]
-        if np.dot(end - inner, d) < 0:
-            d = -d
-        pts[e], dirs[e], ends[e] = c, d, end
-        rms[e] = float(s[1] / np.sqrt(len(x))) if len(s) > 1 else 0.0
-    return pts, dirs, rms, ends
+        d = d_ends[e]
+        core = (d >= trim_px) & (d <= 3.0 * trim_px)
+        n_core = np.bincount(pid[core], minlength=n_p)
+        # pieces too short for a chord beyond the trim: every sample within 3·trim of the end
+        sel = np.where(n_core[pid] >= 3, core, d <= 3.0 * trim_px)
+        g, x, y = pid[sel], p[sel, 0], p[sel, 1]
+        n = np.bincount(g, minlength=n_p).astype(np.float64)
+        good = n >= 2
+        nn = np.maximum(n, 1)
+        mx = np.bincount(g, x, n_p) / nn
+        my = np.bincount(g, y, n_p) / nn
+        dx, dy = x - mx[g], y - my[g]
+        cxx = np.bincount(g, dx * dx, n_p) / nn
+        cyy = np.bincount(g, dy * dy, n_p) / nn
+        cxy = np.bincount(g, dx * dy, n_p) / nn
+        ang = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
+        u = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+        lam_min = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
+        out = ends[:, e] - ends[:, 1 - e]
+        flip = (out * u).sum(1) < 0
+        u[flip] *= -1
+        pts[:, e] = np.stack([mx, my], axis=1)
+        dirs[:, e] = u
+        rms[:, e] = np.sqrt(np.maximum(lam_min, 0.0))
+        ok[:, e] = good & open_mask
+    return pts, dirs, rms, ends, ok
+
+
+def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Connected components (ids numbered by their lowest member) of n nodes joined by the pairs (a, b)."""
+    parent = np.arange(n)
+    for i, j in zip(a.tolist(), b.tolist()):
+        while parent[i] != i:
+            i = parent[i]
+        while parent[j] != j:
+            j = parent[j]
+        if i != j:
+            parent[max(i, j)] = min(i, j)
+    for i in range(n):
+        parent[i] = parent[parent[i]]
+    return parent
 
 
 def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, depth_range_mm, trim_px: float, reach_px: float,
@@ -91,202 +128,243 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     """Label the pieces at crossings of unlabelled pieces (module doc). q (P, 2), fam (P,), index (P,) (NaN: none;
     written in place); the traces as `labelling.label_samples` builds them: sid (n,), piece (n,) non-decreasing, ts
     (n,) position along the piece (px). Returns counts."""
+    from scipy.spatial import cKDTree
+
     stats = {"nodes": 0, "nodes_labelled": 0, "samples": 0}
     n = len(piece)
     if n == 0:
         return stats
     q = np.asarray(q, np.float64)
+    fam = np.asarray(fam)
+    piece = np.asarray(piece, np.intp)
+    sid = np.asarray(sid, np.intp)
+    ts = np.asarray(ts, np.float64)
     starts = np.flatnonzero(np.r_[True, piece[1:] != piece[:-1]])
     stops = np.r_[starts[1:], n]
+    n_p = len(starts)
     lab = np.isfinite(index[sid])
-    n_lab = np.add.reduceat(lab.astype(np.int64), starts)
-    size = stops - starts
-    open_p = np.flatnonzero((n_lab == 0) & (size >= options.min_samples))
-    if len(open_p) < 4:
+    n_lab = np.bincount(piece, lab, n_p)
+    open_mask = (n_lab == 0) & (stops - starts >= options.min_samples)
+    if open_mask.sum() < 3:
         return stats
-    # 1. end lines of the open pieces
-    E = len(open_p) * 2
-    e_pt, e_dir, e_rms, e_end = np.empty((E, 2)), np.empty((E, 2)), np.empty(E), np.empty((E, 2))
-    e_piece = np.repeat(open_p, 2)
-    e_fam = np.empty(E, np.int64)
-    for k, p in enumerate(open_p):
-        a, b = starts[p], stops[p]
-        pts, dirs, rms, ends = _end_lines(q, sid, ts, a, b, trim_px)
-        e_pt[2 * k : 2 * k + 2], e_dir[2 * k : 2 * k + 2], e_rms[2 * k : 2 * k + 2], e_end[2 * k : 2 * k + 2] = pts, dirs, rms, ends
-        e_fam[2 * k : 2 * k + 2] = fam[sid[a]]
+    pts, dirs, rms, ends, ok = _end_lines(q, sid, piece, ts, starts, stops, open_mask, trim_px)
+    # the usable ends: e = 2·piece + side
+    e_all = np.flatnonzero(ok.ravel())
+    e_pt, e_dir, e_rms, e_end = pts.reshape(-1, 2), dirs.reshape(-1, 2), rms.ravel(), ends.reshape(-1, 2)
+    e_piece = np.arange(2 * n_p) // 2
+    e_fam = np.asarray(fam[sid[starts]])[e_piece]
     if debug is not None:
-        debug.update(e_end=e_end.copy(), e_fam=e_fam.copy(), e_dir=e_dir.copy(), e_piece=e_piece.copy(), e_pt=e_pt.copy())
-    f1 = np.flatnonzero(e_fam == 1)
-    f2 = np.flatnonzero(e_fam == 2)
-    if len(f1) < 2 or len(f2) < 2:
+        debug.update(e_end=e_end[e_all], e_fam=e_fam[e_all], e_dir=e_dir[e_all], e_piece=e_piece[e_all], e_pt=e_pt[e_all])
+    # 1. pairs of ends of the two families near each other, and where their end lines cross
+    pr = cKDTree(e_end[e_all]).query_pairs(2.0 * reach_px, output_type="ndarray")
+    if len(pr) == 0:
         return stats
-    # pairs of ends of the two families near each other
-    dd = np.linalg.norm(e_end[f1][:, None, :] - e_end[f2][None, :, :], axis=2)
-    ia, ib = np.nonzero(dd <= 2.0 * reach_px)
-    if len(ia) == 0:
+    a, b = e_all[pr[:, 0]], e_all[pr[:, 1]]
+    sw = e_fam[a] == 2
+    a, b = np.where(sw, b, a), np.where(sw, a, b)
+    keep = (e_fam[a] == 1) & (e_fam[b] == 2)
+    A, B = a[keep], b[keep]
+    if len(A) == 0:
         return stats
-    A, B = f1[ia], f2[ib]
     d1, d2 = e_dir[A], e_dir[B]
     den = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-    ok = np.abs(den) > np.sin(np.deg2rad(10.0))
+    good = np.abs(den) > np.sin(np.deg2rad(10.0))
     w = e_pt[B] - e_pt[A]
-    s_ = np.where(ok, (w[:, 0] * d2[:, 1] - w[:, 1] * d2[:, 0]) / np.where(ok, den, 1.0), 0.0)
+    s_ = np.where(good, (w[:, 0] * d2[:, 1] - w[:, 1] * d2[:, 0]) / np.where(good, den, 1.0), 0.0)
     X = e_pt[A] + s_[:, None] * d1
     ahead_a = ((X - e_end[A]) * d1).sum(1)
     ahead_b = ((X - e_end[B]) * d2).sum(1)
-    ok &= (ahead_a >= -lateral_px) & (ahead_a <= reach_px) & (ahead_b >= -lateral_px) & (ahead_b <= reach_px)
-    A, B, X = A[ok], B[ok], X[ok]
+    good &= (ahead_a >= -lateral_px) & (ahead_a <= reach_px) & (ahead_b >= -lateral_px) & (ahead_b <= reach_px)
+    A, B, X = A[good], B[good], X[good]
     if len(A) == 0:
         return stats
     # nodes: single linkage of the estimates within merge_px
-    merge_px = options.merge_share * model.junction_step_cam_px
     m = len(X)
-    parent = np.arange(m)
-
-    def root(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    close = np.linalg.norm(X[:, None] - X[None], axis=2) <= merge_px
-    for i, j in zip(*np.nonzero(np.triu(close, 1))):
-        ri, rj = root(i), root(j)
-        if ri != rj:
-            parent[max(ri, rj)] = min(ri, rj)
-    comp = np.array([root(i) for i in range(m)])
+    cp = cKDTree(X).query_pairs(options.merge_share * model.junction_step_cam_px, output_type="ndarray")
+    comp = _components(m, cp[:, 0], cp[:, 1]) if len(cp) else np.arange(m)
+    uc, node_of = np.unique(comp, return_inverse=True)
+    N = len(uc)
+    cnt = np.bincount(node_of, minlength=N).astype(np.float64)
+    xn = np.stack([np.bincount(node_of, X[:, 0], N), np.bincount(node_of, X[:, 1], N)], axis=1) / cnt[:, None]
+    # the node's ends (each end once per node)
+    ent = np.unique(np.concatenate([node_of * (2 * n_p) + A, node_of * (2 * n_p) + B]))
+    en_node, en_end = ent // (2 * n_p), ent % (2 * n_p)
+    en_fam = e_fam[en_end]
+    bad = np.zeros(N, bool)
+    # an end at two nodes: neither
+    per_end = np.bincount(en_end, minlength=2 * n_p)
+    bad[en_node[per_end[en_end] > 1]] = True
+    # every end line passes within lateral_px of the node
+    r = xn[en_node] - e_pt[en_end]
+    lat = np.abs(r[:, 0] * e_dir[en_end, 1] - r[:, 1] * e_dir[en_end, 0])
+    bad[en_node[lat > lateral_px]] = True
+    # per family: one or two ends; two: of two pieces, on opposite sides
     cos_opp = np.cos(np.deg2rad(options.opposite_deg))
-    nodes = []
-    for c in np.unique(comp):
-        sel = comp == c
-        xn = X[sel].mean(0)
-        ends = {1: sorted(set(A[sel].tolist())), 2: sorted(set(B[sel].tolist()))}
-        good = True
-        n_two = 0
-        for f in (1, 2):
-            es = ends[f]
-            if len(es) == 1 and options.t_nodes:
-                continue
-            if len(es) != 2 or e_piece[es[0]] == e_piece[es[1]]:
-                good = False
-                break
-            if np.dot(e_dir[es[0]], e_dir[es[1]]) > -cos_opp:
-                good = False
-                break
-            n_two += 1
-        good = good and n_two >= 1
-        for e in ends[1] + ends[2]:
-            r = xn - e_pt[e]
-            if abs(r[0] * e_dir[e][1] - r[1] * e_dir[e][0]) > lateral_px:
-                good = False
-        if debug is not None:
-            debug.setdefault("shapes", []).append((xn, ends, good))
-        if good:
-            nodes.append((xn, ends))
-    stats["nodes"] = len(nodes)
-    if not nodes:
-        return stats
-    # an end at two nodes: left to neither
-    use = {}
-    for k, (_, ends) in enumerate(nodes):
-        for f in (1, 2):
-            for e in ends[f]:
-                use.setdefault(e, set()).add(k)
-    proposals: dict = {}  # piece -> set of indices the accepted nodes at it give
-    z0, z1 = float(depth_range_mm[0]), float(depth_range_mm[1])
-    procam = model.procam
-    tol = tol_px / np.asarray(model.line_spacing_perp_px, np.float64)
+    n_two = np.zeros(N, np.intp)
+    first = {}
+    for f in (1, 2):
+        sel = en_fam == f
+        c = np.bincount(en_node[sel], minlength=N)
+        bad |= (c == 0) | (c > 2)
+        if not options.t_nodes:
+            bad |= c == 1
+        n_two += c == 2
+        nd, ee = en_node[sel], en_end[sel]  # sorted by node (ent is sorted)
+        st = np.searchsorted(nd, np.arange(N))
+        has2 = c == 2
+        e0 = np.where(has2, ee[np.minimum(st, len(ee) - 1)], -1)
+        e1 = np.where(has2, ee[np.minimum(st + 1, len(ee) - 1)], -1)
+        two = np.flatnonzero(has2)
+        bad[two[(e_piece[e0[two]] == e_piece[e1[two]]) | ((e_dir[e0[two]] * e_dir[e1[two]]).sum(1) > -cos_opp)]] = True
+        one = c == 1
+        e0 = np.where(one, ee[np.minimum(st, len(ee) - 1)], e0)
+        first[f] = (e0, e1)
+    bad |= n_two < 1
+    nodes = np.flatnonzero(~bad)
+    stats["nodes"] = int(len(nodes))
     if debug is not None:
-        debug.setdefault("nodes", [])
-    for k, (xn, ends) in enumerate(nodes):
-        pieces = {f: [e_piece[e] for e in ends[f]] for f in (1, 2)}
-        if any(len(use[e]) > 1 for f in (1, 2) for e in ends[f]):
-            if debug is not None:
-                debug["nodes"].append(dict(xy=xn, why="end at two nodes"))
-            continue
-        # 2. the epipolar order
-        dir1 = e_dir[ends[1][0]] - (e_dir[ends[1][1]] if len(ends[1]) > 1 else 0.0)
-        dir2 = e_dir[ends[2][0]] - (e_dir[ends[2][1]] if len(ends[2]) > 1 else 0.0)
-        exp = int(expected_order_sign(model, xn[None])[0])
-        e_ep = epipolar_dir_cam(model, xn[None])
-        if exp == 0 or int(order_sign(e_ep, dir1[None], dir2[None])[0]) != exp:
-            if debug is not None:
-                debug["nodes"].append(dict(xy=xn, why="order"))
-            continue
-        # 3. admissible indices per family
-        rng = {}
-        pos_f = {}
-        for f in (1, 2):
-            pos = np.concatenate([np.arange(starts[p], stops[p]) for p in pieces[f]])
-            s = sid[pos]
-            lo, hi = index_stretch(model, q[s], np.full(len(s), f), (z0, z1))
-            if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-                rng[f] = (1, 0)
-                continue
-            k_lo = int(max(np.ceil(np.max(lo) - tol[f - 1]), model.index_min))
-            k_hi = int(min(np.floor(np.min(hi) + tol[f - 1]), model.index_max))
-            rng[f] = (k_lo, k_hi)
-            pos_f[f] = pos
-        if rng[1][0] > rng[1][1] or rng[2][0] > rng[2][1]:
-            if debug is not None:
-                debug["nodes"].append(dict(xy=xn, why="no range"))
-            continue
-        ii, jj = np.meshgrid(np.arange(rng[1][0], rng[1][1] + 1), np.arange(rng[2][0], rng[2][1] + 1), indexing="ij")
-        ii, jj = ii.ravel(), jj.ravel()
-        # every sample on its sheet inside the volume
-        okf = {}
-        for f, ks in ((1, np.unique(ii)), (2, np.unique(jj))):
-            s = sid[pos_f[f]]
-            good = []
-            for kk in ks:
-                z = model.sheet_depth(q[s], np.full(len(s), f), np.full(len(s), kk))
-                good.append(bool(np.all((z >= z0) & (z <= z1))))
-            okf[f] = dict(zip(ks.tolist(), good))
-        keep = np.array([okf[1][a] and okf[2][b] for a, b in zip(ii, jj)], bool)
-        ii, jj = ii[keep], jj[keep]
-        if len(ii) == 0:
-            if debug is not None:
-                debug["nodes"].append(dict(xy=xn, why="no sheet in volume"))
-            continue
-        xy = model.cam_normalised(xn[None])
-        xy_p = model.junction_xy(ii, jj)
-        p, _gap = triangulate_rays(procam, np.repeat(xy, len(ii), 0), xy_p)
-        z = depth_cam(procam, p)
-        inside = (z >= z0) & (z <= z1)
-        ii, jj, xy_p = ii[inside], jj[inside], xy_p[inside]
-        if len(ii) == 0:
-            if debug is not None:
-                debug["nodes"].append(dict(xy=xn, why="junction outside volume"))
-            continue
-        ln = epipolar_lines(procam, xy)[0]
-        r = np.abs(ln[0] * xy_p[:, 0] + ln[1] * xy_p[:, 1] + ln[2]) * model.fx_proj
-        order = np.argsort(r, kind="stable")
-        s1 = float(r[order[0]] ** 2)
-        s2 = float(r[order[1]] ** 2) if len(order) > 1 else np.inf
-        rho = float(max(e_rms[e] for f in (1, 2) for e in ends[f]))
-        sig2 = max(s1, noise_floor_px**2, rho**2)
-        accept = (s2 - s1) / sig2 >= options.min_llr and s2 >= options.min_rms_ratio**2 * sig2
-        if debug is not None:
-            debug["nodes"].append(dict(xy=xn, why="ok" if accept else "ambiguous", ij=(int(ii[order[0]]), int(jj[order[0]])),
-                                       r=np.sqrt([s1, s2]), rho=rho, n_cand=len(ii), pieces=pieces))
-        if not accept:
-            continue
-        stats["nodes_labelled"] += 1
-        lbl = {1: int(ii[order[0]]), 2: int(jj[order[0]])}
-        for f in (1, 2):
-            for p in pieces[f]:
-                proposals.setdefault(p, set()).add(lbl[f])
+        debug["nodes"] = []
+    if len(nodes) == 0:
+        return stats
+    # 2. the epipolar order: i-line and j-line directions through the node
+    dfam = {}
+    for f in (1, 2):
+        e0, e1 = first[f][0][nodes], first[f][1][nodes]
+        dfam[f] = e_dir[e0] - np.where((e1 >= 0)[:, None], e_dir[np.maximum(e1, 0)], 0.0)
+    exp = expected_order_sign(model, xn[nodes])
+    got = order_sign(epipolar_dir_cam(model, xn[nodes]), dfam[1], dfam[2])
+    nodes = nodes[(exp != 0) & (got == exp)]
+    if len(nodes) == 0:
+        return stats
+    # 3. the lines the working volume leaves for each node's pieces
+    z0, z1 = float(depth_range_mm[0]), float(depth_range_mm[1])
+    tol = tol_px / np.asarray(model.line_spacing_perp_px, np.float64)
+    K = len(nodes)
+    # per group g = 2·node + (f − 1): its one or two pieces
+    g_e0 = np.empty(2 * K, np.intp)
+    g_e1 = np.empty(2 * K, np.intp)
+    for f in (1, 2):
+        g_e0[f - 1 :: 2] = first[f][0][nodes]
+        g_e1[f - 1 :: 2] = first[f][1][nodes]
+    has1 = g_e1 >= 0
+    gp = np.concatenate([np.arange(2 * K), np.flatnonzero(has1)])
+    pc = np.concatenate([e_piece[g_e0], e_piece[g_e1[has1]]])
+    # all samples of the nodes' pieces, one stretch computation
+    sz = stops[pc] - starts[pc]
+    pos = np.repeat(starts[pc], sz) + (np.arange(sz.sum()) - np.repeat(np.cumsum(sz) - sz, sz))
+    grp = np.repeat(gp, sz)
+    s_all = sid[pos]
+    f_all = (grp % 2 + 1).astype(np.intp)
+    lo, hi = index_stretch(model, q[s_all], f_all, (z0, z1))
+    G = 2 * K
+    miss = np.bincount(grp, ~(np.isfinite(lo) & np.isfinite(hi)), G) > 0
+    lo_g = np.full(G, -np.inf)
+    hi_g = np.full(G, np.inf)
+    np.maximum.at(lo_g, grp, np.nan_to_num(lo, nan=np.inf))
+    np.minimum.at(hi_g, grp, np.nan_to_num(hi, nan=-np.inf))
+    tol_g = np.tile(tol, K)
+    k_lo = np.maximum(np.ceil(lo_g - tol_g), model.index_min).astype(np.intp)
+    k_hi = np.minimum(np.floor(hi_g + tol_g), model.index_max).astype(np.intp)
+    # candidates (i, j) per node: the products of the two ranges
+    n_g = np.where(miss, 0, np.maximum(k_hi - k_lo + 1, 0))
+    ni, nj = n_g[0::2], n_g[1::2]
+    tot = ni * nj
+    if tot.sum() == 0:
+        return stats
+    cn = np.repeat(np.arange(K), tot)
+    rr = np.arange(tot.sum()) - np.repeat(np.cumsum(tot) - tot, tot)
+    ci = k_lo[0::2][cn] + rr // nj[cn]
+    cj = k_lo[1::2][cn] + rr % nj[cn]
+    procam = model.procam
+    xy_n = model.cam_normalised(xn[nodes])
+    xy_p = model.junction_xy(ci, cj)
+    p3, _gap = triangulate_rays(procam, xy_n[cn], xy_p)
+    zc = depth_cam(procam, p3)
+    adm = (zc >= z0) & (zc <= z1)
+    ln = epipolar_lines(procam, xy_n)[cn]
+    res = np.abs(ln[:, 0] * xy_p[:, 0] + ln[:, 1] * xy_p[:, 1] + ln[:, 2]) * model.fx_proj
+    # every sample of the node's pieces of family f, on sheet k, inside the volume (decision 0128's step 4): checked
+    # for each node's candidates in the order of their residual, the 4 best first, the rest only where those 4 do not
+    # hold two admissible ones (only the best two admissible candidates decide)
+    order_g = np.argsort(grp, kind="stable")
+    g_start = np.searchsorted(grp[order_g], np.arange(G))
+    g_size = np.searchsorted(grp[order_g], np.arange(G), side="right") - g_start
+    span = model.index_max - model.index_min + 1
+    sheet_ok: dict = {}
+
+    def check(keys):
+        keys = np.unique(keys)
+        keys = keys[[kk not in sheet_ok for kk in keys.tolist()]]
+        if len(keys) == 0:
+            return
+        g, kk = keys // span, keys % span + model.index_min
+        sz = g_size[g]
+        rows_c = np.repeat(np.arange(len(keys)), sz)
+        off = np.arange(len(rows_c)) - np.repeat(np.cumsum(sz) - sz, sz)
+        rows_s = order_g[g_start[g][rows_c] + off]
+        zs = model.sheet_depth(q[s_all[rows_s]], f_all[rows_s], kk[rows_c])
+        bad_c = np.bincount(rows_c, ~((zs >= z0) & (zs <= z1)), len(keys)) > 0
+        sheet_ok.update(zip(keys.tolist(), (~bad_c).tolist()))
+
+    key_i = (cn * 2 + 0) * span + (ci - model.index_min)
+    key_j = (cn * 2 + 1) * span + (cj - model.index_min)
+    o = np.lexsort((res, cn))
+    o = o[adm[o]]
+    rank = np.arange(len(o)) - np.searchsorted(cn[o], cn[o])
+    top = o[rank < 4]
+    check(np.concatenate([key_i[top], key_j[top]]))
+    ok_top = np.array([sheet_ok[a_] and sheet_ok[b_] for a_, b_ in zip(key_i[top].tolist(), key_j[top].tolist())], bool)
+    n_ok = np.bincount(cn[top], ok_top, len(nodes))
+    rest = o[(rank >= 4) & (n_ok[cn[o]] < 2)]
+    check(np.concatenate([key_i[rest], key_j[rest]]))
+    cand = np.concatenate([top, rest])
+    good_c = np.array([sheet_ok[a_] and sheet_ok[b_] for a_, b_ in zip(key_i[cand].tolist(), key_j[cand].tolist())], bool)
+    adm = np.zeros(len(cn), bool)
+    adm[cand[good_c]] = True
+    # 4. the choice per node, as for a lone found junction
+    o = np.lexsort((res, cn))
+    o = o[adm[o]]
+    if len(o) == 0:
+        return stats
+    st1 = np.searchsorted(cn[o], np.arange(K))
+    cnt_k = np.bincount(cn[o], minlength=K)
+    have = cnt_k > 0
+    b1 = o[np.minimum(st1, len(o) - 1)]
+    b2 = o[np.minimum(st1 + 1, len(o) - 1)]
+    s1 = res[b1] ** 2
+    s2 = np.where(cnt_k > 1, res[b2] ** 2, np.inf)
+    # ρ: the larger end-line RMS at the node (camera px)
+    rho = np.zeros(K)
+    for x in (g_e0, g_e1):
+        ex = np.maximum(x, 0)
+        v = np.where(x >= 0, e_rms[ex], 0.0)
+        rho = np.maximum(rho, np.maximum(v[0::2], v[1::2]))
+    sig2 = np.maximum(np.maximum(s1, noise_floor_px**2), rho**2)
+    with np.errstate(invalid="ignore"):
+        accept = have & ((s2 - s1) / sig2 >= options.min_llr) & (s2 >= options.min_rms_ratio**2 * sig2)
+    if debug is not None:
+        for k in np.flatnonzero(have):
+            debug["nodes"].append(dict(xy=xn[nodes[k]], why="ok" if accept[k] else "ambiguous", ij=(int(ci[b1[k]]), int(cj[b1[k]])),
+                                       r=np.sqrt([s1[k], s2[k]]), rho=rho[k], n_cand=int(cnt_k[k])))
+    stats["nodes_labelled"] = int(accept.sum())
+    proposals: dict = {}
+    for k in np.flatnonzero(accept).tolist():
+        for f, kk in ((1, int(ci[b1[k]])), (2, int(cj[b1[k]]))):
+            g = 2 * k + f - 1
+            for e in (g_e0[g], g_e1[g]):
+                if e >= 0:
+                    proposals.setdefault(int(e_piece[e]), set()).add(kk)
     # 5. the pieces whose accepted nodes agree, without their samples within trim_px of either end
-    for p in sorted(proposals):
-        ks = proposals[p]
+    for p_ in sorted(proposals):
+        ks = proposals[p_]
         if len(ks) != 1:
             stats["pieces_conflicting"] = stats.get("pieces_conflicting", 0) + 1
             continue
-        a, b = starts[p], stops[p]
-        t = ts[a:b]
+        a_, b_ = starts[p_], stops[p_]
+        t = ts[a_:b_]
         inner = (t - t[0] >= trim_px) & (t[-1] - t >= trim_px)
-        s = sid[a:b][inner]
-        s = s[~np.isfinite(index[s])]
-        index[s] = next(iter(ks))
-        stats["samples"] += len(s)
+        ss = sid[a_:b_][inner]
+        ss = ss[~np.isfinite(index[ss])]
+        index[ss] = next(iter(ks))
+        stats["samples"] += len(ss)
     return stats
