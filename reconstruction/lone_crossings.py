@@ -43,6 +43,7 @@ import numpy as np
 from reconstruction.acute_crossings import epipolar_dir_cam, expected_order_sign, order_sign
 from reconstruction.depth_range_labels import index_stretch
 from reconstruction.geometry import depth_cam, epipolar_lines, triangulate_rays
+from reconstruction._jit import njit
 from reconstruction.rigmodel import RigModel
 
 
@@ -107,6 +108,142 @@ def _end_lines(q, sid, piece, ts, starts, stops, open_mask, trim_px):
     return pts, dirs, rms, ends, ok
 
 
+@njit
+def _k_end_lines(q, sid, ts, starts, stops, open_mask, trim_px):
+    """`_end_lines` compiled: per piece and end (e = 2·piece + side) the end line's point, outward direction, fit RMS,
+    end sample and whether it is usable (an open piece with at least 2 samples in the fit)."""
+    n_p = starts.shape[0]
+    pts = np.zeros((2 * n_p, 2))
+    dirs = np.zeros((2 * n_p, 2))
+    rms = np.zeros(2 * n_p)
+    ends = np.zeros((2 * n_p, 2))
+    ok = np.zeros(2 * n_p, np.bool_)
+    for p in range(n_p):
+        a = starts[p]
+        b = stops[p]
+        ends[2 * p, 0] = q[sid[a], 0]
+        ends[2 * p, 1] = q[sid[a], 1]
+        ends[2 * p + 1, 0] = q[sid[b - 1], 0]
+        ends[2 * p + 1, 1] = q[sid[b - 1], 1]
+        if not open_mask[p]:
+            continue
+        for e in range(2):
+            # pass 1: counts and sums of the core (trim … 3·trim from the end) and of everything within 3·trim
+            nc = 0
+            na = 0
+            for k in range(b - a):
+                pos = a + k if e == 0 else b - 1 - k
+                d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
+                if d > 3.0 * trim_px:
+                    break
+                na += 1
+                if d >= trim_px:
+                    nc += 1
+            use_core = nc >= 3
+            nn = nc if use_core else na
+            if nn < 2:
+                continue
+            sx = 0.0
+            sy = 0.0
+            for k in range(na):
+                pos = a + k if e == 0 else b - 1 - k
+                d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
+                if use_core and d < trim_px:
+                    continue
+                sx += q[sid[pos], 0]
+                sy += q[sid[pos], 1]
+            mx = sx / nn
+            my = sy / nn
+            cxx = 0.0
+            cyy = 0.0
+            cxy = 0.0
+            for k in range(na):
+                pos = a + k if e == 0 else b - 1 - k
+                d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
+                if use_core and d < trim_px:
+                    continue
+                dx = q[sid[pos], 0] - mx
+                dy = q[sid[pos], 1] - my
+                cxx += dx * dx
+                cyy += dy * dy
+                cxy += dx * dy
+            cxx /= nn
+            cyy /= nn
+            cxy /= nn
+            ang = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
+            ux = np.cos(ang)
+            uy = np.sin(ang)
+            lam = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
+            i = 2 * p + e
+            o = 2 * p + 1 - e
+            if (ends[i, 0] - ends[o, 0]) * ux + (ends[i, 1] - ends[o, 1]) * uy < 0:
+                ux = -ux
+                uy = -uy
+            pts[i, 0] = mx
+            pts[i, 1] = my
+            dirs[i, 0] = ux
+            dirs[i, 1] = uy
+            rms[i] = np.sqrt(max(lam, 0.0))
+            ok[i] = True
+    return pts, dirs, rms, ends, ok
+
+
+@njit
+def _k_crossings(e1, e2, pts, dirs, ends, reach_px, lateral_px, sin_min):
+    """Every pair of a family-1 end (e1) and a family-2 end (e2) whose end samples lie within 2·reach_px and whose end
+    lines cross ahead of both ends (within reach_px; from −lateral_px), at an angle of at least asin(sin_min):
+    (A, B, X)."""
+    n1 = e1.shape[0]
+    n2 = e2.shape[0]
+    cap = 64
+    A = np.empty(cap, np.int64)
+    B = np.empty(cap, np.int64)
+    X = np.empty((cap, 2))
+    m = 0
+    r2 = (2.0 * reach_px) ** 2
+    for u in range(n1):
+        a = e1[u]
+        for v in range(n2):
+            b = e2[v]
+            dx = ends[a, 0] - ends[b, 0]
+            dy = ends[a, 1] - ends[b, 1]
+            if dx * dx + dy * dy > r2:
+                continue
+            den = dirs[a, 0] * dirs[b, 1] - dirs[a, 1] * dirs[b, 0]
+            if abs(den) <= sin_min:
+                continue
+            wx = pts[b, 0] - pts[a, 0]
+            wy = pts[b, 1] - pts[a, 1]
+            s = (wx * dirs[b, 1] - wy * dirs[b, 0]) / den
+            x = pts[a, 0] + s * dirs[a, 0]
+            y = pts[a, 1] + s * dirs[a, 1]
+            ha = (x - ends[a, 0]) * dirs[a, 0] + (y - ends[a, 1]) * dirs[a, 1]
+            hb = (x - ends[b, 0]) * dirs[b, 0] + (y - ends[b, 1]) * dirs[b, 1]
+            if ha < -lateral_px or ha > reach_px or hb < -lateral_px or hb > reach_px:
+                continue
+            if m == cap:
+                cap *= 2
+                A2 = np.empty(cap, np.int64)
+                B2 = np.empty(cap, np.int64)
+                X2 = np.empty((cap, 2))
+                A2[:m] = A[:m]
+                B2[:m] = B[:m]
+                X2[:m] = X[:m]
+                A, B, X = A2, B2, X2
+            A[m] = a
+            B[m] = b
+            X[m, 0] = x
+            X[m, 1] = y
+            m += 1
+    return A[:m], B[:m], X[:m]
+
+
+def _unique(a: np.ndarray) -> np.ndarray:
+    """np.unique of an integer array by a sort (NumPy 2's hash-based unique is slow on these small arrays)."""
+    a = np.sort(a, kind="stable")
+    return a[np.r_[True, a[1:] != a[:-1]]] if len(a) else a
+
+
 def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Connected components (ids numbered by their lowest member) of n nodes joined by the pairs (a, b)."""
     parent = np.arange(n)
@@ -147,47 +284,29 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     open_mask = (n_lab == 0) & (stops - starts >= options.min_samples)
     if open_mask.sum() < 3:
         return stats
-    pts, dirs, rms, ends, ok = _end_lines(q, sid, piece, ts, starts, stops, open_mask, trim_px)
-    # the usable ends: e = 2·piece + side
-    e_all = np.flatnonzero(ok.ravel())
-    e_pt, e_dir, e_rms, e_end = pts.reshape(-1, 2), dirs.reshape(-1, 2), rms.ravel(), ends.reshape(-1, 2)
+    e_pt, e_dir, e_rms, e_end, ok = _k_end_lines(q, sid, ts, starts.astype(np.int64), stops.astype(np.int64), open_mask, float(trim_px))
+    e_all = np.flatnonzero(ok)
     e_piece = np.arange(2 * n_p) // 2
     e_fam = np.asarray(fam[sid[starts]])[e_piece]
     if debug is not None:
         debug.update(e_end=e_end[e_all], e_fam=e_fam[e_all], e_dir=e_dir[e_all], e_piece=e_piece[e_all], e_pt=e_pt[e_all])
     # 1. pairs of ends of the two families near each other, and where their end lines cross
-    pr = cKDTree(e_end[e_all]).query_pairs(2.0 * reach_px, output_type="ndarray")
-    if len(pr) == 0:
-        return stats
-    a, b = e_all[pr[:, 0]], e_all[pr[:, 1]]
-    sw = e_fam[a] == 2
-    a, b = np.where(sw, b, a), np.where(sw, a, b)
-    keep = (e_fam[a] == 1) & (e_fam[b] == 2)
-    A, B = a[keep], b[keep]
-    if len(A) == 0:
-        return stats
-    d1, d2 = e_dir[A], e_dir[B]
-    den = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-    good = np.abs(den) > np.sin(np.deg2rad(10.0))
-    w = e_pt[B] - e_pt[A]
-    s_ = np.where(good, (w[:, 0] * d2[:, 1] - w[:, 1] * d2[:, 0]) / np.where(good, den, 1.0), 0.0)
-    X = e_pt[A] + s_[:, None] * d1
-    ahead_a = ((X - e_end[A]) * d1).sum(1)
-    ahead_b = ((X - e_end[B]) * d2).sum(1)
-    good &= (ahead_a >= -lateral_px) & (ahead_a <= reach_px) & (ahead_b >= -lateral_px) & (ahead_b <= reach_px)
-    A, B, X = A[good], B[good], X[good]
+    A, B, X = _k_crossings(e_all[e_fam[e_all] == 1], e_all[e_fam[e_all] == 2], e_pt, e_dir, e_end, float(reach_px), float(lateral_px),
+                           float(np.sin(np.deg2rad(10.0))))
     if len(A) == 0:
         return stats
     # nodes: single linkage of the estimates within merge_px
     m = len(X)
     cp = cKDTree(X).query_pairs(options.merge_share * model.junction_step_cam_px, output_type="ndarray")
     comp = _components(m, cp[:, 0], cp[:, 1]) if len(cp) else np.arange(m)
-    uc, node_of = np.unique(comp, return_inverse=True)
-    N = len(uc)
+    is_root = np.zeros(m, bool)
+    is_root[comp] = True
+    N = int(is_root.sum())
+    node_of = (np.cumsum(is_root) - 1)[comp]
     cnt = np.bincount(node_of, minlength=N).astype(np.float64)
     xn = np.stack([np.bincount(node_of, X[:, 0], N), np.bincount(node_of, X[:, 1], N)], axis=1) / cnt[:, None]
     # the node's ends (each end once per node)
-    ent = np.unique(np.concatenate([node_of * (2 * n_p) + A, node_of * (2 * n_p) + B]))
+    ent = _unique(np.concatenate([node_of * (2 * n_p) + A, node_of * (2 * n_p) + B]))
     en_node, en_end = ent // (2 * n_p), ent % (2 * n_p)
     en_fam = e_fam[en_end]
     bad = np.zeros(N, bool)
@@ -250,6 +369,8 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     gp = np.concatenate([np.arange(2 * K), np.flatnonzero(has1)])
     pc = np.concatenate([e_piece[g_e0], e_piece[g_e1[has1]]])
     # all samples of the nodes' pieces, one stretch computation
+    og = np.argsort(gp, kind="stable")
+    gp, pc = gp[og], pc[og]
     sz = stops[pc] - starts[pc]
     pos = np.repeat(starts[pc], sz) + (np.arange(sz.sum()) - np.repeat(np.cumsum(sz) - sz, sz))
     grp = np.repeat(gp, sz)
@@ -286,25 +407,23 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     # every sample of the node's pieces of family f, on sheet k, inside the volume (decision 0128's step 4): checked
     # for each node's candidates in the order of their residual, the 4 best first, the rest only where those 4 do not
     # hold two admissible ones (only the best two admissible candidates decide)
-    order_g = np.argsort(grp, kind="stable")
-    g_start = np.searchsorted(grp[order_g], np.arange(G))
-    g_size = np.searchsorted(grp[order_g], np.arange(G), side="right") - g_start
+    g_start = np.searchsorted(grp, np.arange(G))
+    g_size = np.searchsorted(grp, np.arange(G), side="right") - g_start
     span = model.index_max - model.index_min + 1
-    sheet_ok: dict = {}
+    state = np.zeros(G * span, np.int8)  # per (group, line): 0 not checked, 1 inside the volume, 2 not
 
     def check(keys):
-        keys = np.unique(keys)
-        keys = keys[[kk not in sheet_ok for kk in keys.tolist()]]
+        keys = _unique(keys)
+        keys = keys[state[keys] == 0]
         if len(keys) == 0:
             return
         g, kk = keys // span, keys % span + model.index_min
-        sz = g_size[g]
-        rows_c = np.repeat(np.arange(len(keys)), sz)
-        off = np.arange(len(rows_c)) - np.repeat(np.cumsum(sz) - sz, sz)
-        rows_s = order_g[g_start[g][rows_c] + off]
+        sz_ = g_size[g]
+        rows_c = np.repeat(np.arange(len(keys)), sz_)
+        rows_s = g_start[g][rows_c] + (np.arange(len(rows_c)) - np.repeat(np.cumsum(sz_) - sz_, sz_))
         zs = model.sheet_depth(q[s_all[rows_s]], f_all[rows_s], kk[rows_c])
         bad_c = np.bincount(rows_c, ~((zs >= z0) & (zs <= z1)), len(keys)) > 0
-        sheet_ok.update(zip(keys.tolist(), (~bad_c).tolist()))
+        state[keys] = np.where(bad_c, 2, 1)
 
     key_i = (cn * 2 + 0) * span + (ci - model.index_min)
     key_j = (cn * 2 + 1) * span + (cj - model.index_min)
@@ -313,14 +432,12 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     rank = np.arange(len(o)) - np.searchsorted(cn[o], cn[o])
     top = o[rank < 4]
     check(np.concatenate([key_i[top], key_j[top]]))
-    ok_top = np.array([sheet_ok[a_] and sheet_ok[b_] for a_, b_ in zip(key_i[top].tolist(), key_j[top].tolist())], bool)
-    n_ok = np.bincount(cn[top], ok_top, len(nodes))
+    n_ok = np.bincount(cn[top], (state[key_i[top]] == 1) & (state[key_j[top]] == 1), K)
     rest = o[(rank >= 4) & (n_ok[cn[o]] < 2)]
     check(np.concatenate([key_i[rest], key_j[rest]]))
-    cand = np.concatenate([top, rest])
-    good_c = np.array([sheet_ok[a_] and sheet_ok[b_] for a_, b_ in zip(key_i[cand].tolist(), key_j[cand].tolist())], bool)
     adm = np.zeros(len(cn), bool)
-    adm[cand[good_c]] = True
+    cand = np.concatenate([top, rest])
+    adm[cand[(state[key_i[cand]] == 1) & (state[key_j[cand]] == 1)]] = True
     # 4. the choice per node, as for a lone found junction
     o = np.lexsort((res, cn))
     o = o[adm[o]]
