@@ -404,6 +404,7 @@ def _triangulate(
         "samples_piece_junctions": int(sample_stats.get("samples_piece_junctions", 0)),
         "samples_beside_lines": int(sample_stats.get("samples_beside_lines", 0)),
         "samples_depth_range": int(sample_stats.get("samples_depth_range", 0)),
+        "samples_lone_crossings": int(sample_stats.get("samples_lone_crossings", 0)),
         "samples_crossing_filled": int(cp.stats["samples_crossing_filled"]) if cp is not None else 0,
         "samples_one_sided_filled": int(cp.stats.get("samples_one_sided_filled", 0)) if cp is not None else 0,
         "samples_border_filled": int(cp.stats.get("samples_border_filled", 0)) if cp is not None else 0,
