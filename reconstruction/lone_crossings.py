@@ -6,28 +6,31 @@ junction there (a wide, dim crossing: too few ring samples, decisions 0068, 0129
 junctions need a component of three nodes. The pieces stay unlabelled although the crossing, with the working
 volume, names both lines.
 
-For every crossing of unlabelled pieces (each family's line through it on both sides: an X, not a T or an L, which
-are silhouettes, shadows or the pattern's rim, decision 0041):
+For every crossing of unlabelled pieces:
 
 1. **Crossing.** Each end of an unlabelled piece of at least `min_samples` samples has an end line: the total
    least-squares line of its samples between `trim_px` and 3·`trim_px` from the end (the crossing's light pulls
-   the first ones, decision 0059). An end of family 1 and an end of family 2 meet where their end lines cross,
-   ahead of both ends, within `reach_px` (half a crossing's gap); the estimates closer than `merge_px` are one
-   node, at their mean. A node is kept when each family has exactly two ends there, on opposite sides, and every
-   end line passes within `lateral_px` of it.
+   the first ones, decision 0059; all within 3·`trim_px` on a piece too short for that). An end of family 1 and an
+   end of family 2 meet where their end lines cross, ahead of both ends, within `reach_px` (half a crossing's gap);
+   the estimates closer than `merge_px` are one node, at their mean. A node is kept when every end line passes
+   within `lateral_px` of it, each family has one or two ends there, a family with two has them on two pieces on
+   opposite sides, at least one family runs through (an X; with `t_nodes` also a T whose stem is the other family:
+   the pyramid's crossing on paper-intermediate has an arm extraction lost), and no end belongs to two nodes.
 2. **Families.** The cyclic order of (epipolar direction, i-line, j-line) at the node is the rig's
    (`acute_crossings.expected_order_sign`, decision 0083: every lit, visible surface shows it): a piece given
    the wrong family (where both families turn towards the epipolar direction) swaps it.
 3. **Candidates.** The working volume names, per family, the lines the node's pieces can lie on: the integers in
    the intersection of their samples' stretches (decision 0128's, widened by `tol_px`). A candidate junction
    (i, j) of those must lie in the pattern, triangulate (camera ray and projector ray) inside the volume, and put
-   every sample of the pieces, on its sheet, inside the volume. The true junction always passes.
+   the pieces' samples, on its sheet, inside the volume (both over `check_samples` samples a piece, evenly spaced:
+   fewer samples admit a superset). The true junction always passes.
 4. **Choice.** Among the candidates, the epipolar residual r of the node (projector px) decides as for a lone
    found junction (decision 0134): s = r², σ² = max(s1, σ0², ρ²) (σ0 the epipolar floor, ρ the larger RMS of
    the node's end-line fits, camera px: arms that are not straight bound how well the node is placed), accepted
    when (s2 − s1)/σ² ≥ `min_llr` and s2 ≥ `min_rms_ratio`²·σ² (a lone candidate: s2 = ∞).
-5. **Pieces.** The node's four pieces take i (family 1) and j (family 2); their samples within `trim_px` of
-   either end stay unlabelled, as in decision 0128 (gap filling reaches them where both sides are labelled).
+5. **Pieces.** The node's pieces take i (family 1) and j (family 2) where every accepted node at a piece agrees;
+   their samples within `trim_px` of either end stay unlabelled, as in decision 0128 (gap filling reaches them
+   where both sides are labelled).
 
 Why this is not one-sided evidence (decisions 0049, 0089): nothing is carried from a labelled neighbour; the
 crossing is labelled from its own epipolar line, like a found lone junction, and its pieces are those a found
@@ -39,6 +42,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from reconstruction.acute_crossings import epipolar_dir_cam, expected_order_sign, order_sign
 from reconstruction.depth_range_labels import index_stretch
@@ -51,7 +55,9 @@ from reconstruction.rigmodel import RigModel
 class LoneCrossingOptions:
     """enabled: the step runs (`TraceOptions.lone_crossings`). min_samples: the shortest piece used. min_llr,
     min_rms_ratio: the ambiguity test of `label_epipolar` (25, 1.5). merge_share: node estimates closer than this share of the junction step are one
-    node. opposite_deg: a family's two ends at a node point apart within this of 180°."""
+    node. opposite_deg: a family's two ends at a node point apart within this of 180°. t_nodes: a node where
+    one family has a single end (a T whose stem is that family) is kept too. check_samples: the samples per piece
+    (evenly spaced, both ends included) whose stretches and sheet depths are checked."""
 
     enabled: bool = True
     min_samples: int = 4
@@ -60,57 +66,12 @@ class LoneCrossingOptions:
     merge_share: float = 0.25
     opposite_deg: float = 25.0
     t_nodes: bool = True
-
-
-def _end_lines(q, sid, piece, ts, starts, stops, open_mask, trim_px):
-    """The end lines of the open pieces (module doc, step 1), both ends of every piece: (point (Np, 2, 2), outward unit
-    direction (Np, 2, 2), fit RMS (Np, 2), end sample (Np, 2, 2), usable (Np, 2)); Np the number of pieces."""
-    n_p = len(starts)
-    pts = np.zeros((n_p, 2, 2))
-    dirs = np.zeros((n_p, 2, 2))
-    rms = np.zeros((n_p, 2))
-    ok = np.zeros((n_p, 2), bool)
-    ends = np.stack([q[sid[starts]], q[sid[stops - 1]]], axis=1)
-    on = np.flatnonzero(open_mask[piece])
-    pid = piece[on]
-    t = ts[on]
-    d_ends = (t - ts[starts[pid]], ts[stops[pid] - 1] - t)
-    near = (d_ends[0] <= 3.0 * trim_px) | (d_ends[1] <= 3.0 * trim_px)
-    on, pid = on[near], pid[near]
-    p = q[sid[on]]
-    d_ends = (d_ends[0][near], d_ends[1][near])
-    for e in (0, 1):
-        d = d_ends[e]
-        core = (d >= trim_px) & (d <= 3.0 * trim_px)
-        n_core = np.bincount(pid[core], minlength=n_p)
-        # pieces too short for a chord beyond the trim: every sample within 3·trim of the end
-        sel = np.where(n_core[pid] >= 3, core, d <= 3.0 * trim_px)
-        g, x, y = pid[sel], p[sel, 0], p[sel, 1]
-        n = np.bincount(g, minlength=n_p).astype(np.float64)
-        good = n >= 2
-        nn = np.maximum(n, 1)
-        mx = np.bincount(g, x, n_p) / nn
-        my = np.bincount(g, y, n_p) / nn
-        dx, dy = x - mx[g], y - my[g]
-        cxx = np.bincount(g, dx * dx, n_p) / nn
-        cyy = np.bincount(g, dy * dy, n_p) / nn
-        cxy = np.bincount(g, dx * dy, n_p) / nn
-        ang = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
-        u = np.stack([np.cos(ang), np.sin(ang)], axis=1)
-        lam_min = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
-        out = ends[:, e] - ends[:, 1 - e]
-        flip = (out * u).sum(1) < 0
-        u[flip] *= -1
-        pts[:, e] = np.stack([mx, my], axis=1)
-        dirs[:, e] = u
-        rms[:, e] = np.sqrt(np.maximum(lam_min, 0.0))
-        ok[:, e] = good & open_mask
-    return pts, dirs, rms, ends, ok
+    check_samples: int = 8
 
 
 @njit
 def _k_end_lines(q, sid, ts, starts, stops, open_mask, trim_px):
-    """`_end_lines` compiled: per piece and end (e = 2·piece + side) the end line's point, outward direction, fit RMS,
+    """Step 1's end lines: per piece and end (e = 2·piece + side) the end line's point, outward direction, fit RMS,
     end sample and whether it is usable (an open piece with at least 2 samples in the fit)."""
     n_p = starts.shape[0]
     pts = np.zeros((2 * n_p, 2))
@@ -265,8 +226,6 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     """Label the pieces at crossings of unlabelled pieces (module doc). q (P, 2), fam (P,), index (P,) (NaN: none;
     written in place); the traces as `labelling.label_samples` builds them: sid (n,), piece (n,) non-decreasing, ts
     (n,) position along the piece (px). Returns counts."""
-    from scipy.spatial import cKDTree
-
     stats = {"nodes": 0, "nodes_labelled": 0, "samples": 0}
     n = len(piece)
     if n == 0:
@@ -371,8 +330,13 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     # all samples of the nodes' pieces, one stretch computation
     og = np.argsort(gp, kind="stable")
     gp, pc = gp[og], pc[og]
-    sz = stops[pc] - starts[pc]
-    pos = np.repeat(starts[pc], sz) + (np.arange(sz.sum()) - np.repeat(np.cumsum(sz) - sz, sz))
+    # at most `check_samples` samples a piece, evenly spaced from end to end (the stretches' intersection and the
+    # volume test over fewer samples admit a superset of the lines: never fewer candidates, never the truth out)
+    full = stops[pc] - starts[pc]
+    sz = np.minimum(full, options.check_samples)
+    rk = np.arange(sz.sum()) - np.repeat(np.cumsum(sz) - sz, sz)
+    step = np.repeat((full - 1) / np.maximum(sz - 1, 1), sz)
+    pos = np.repeat(starts[pc], sz) + np.rint(rk * step).astype(np.intp)
     grp = np.repeat(gp, sz)
     s_all = sid[pos]
     f_all = (grp % 2 + 1).astype(np.intp)
