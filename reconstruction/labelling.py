@@ -890,6 +890,9 @@ class TraceOptions:
         (`LabelOptions.noise_floor_px`), pieces of at least cross_min_samples samples; the samples within
         cross_trim_sigma·σ of a piece's ends stay unlabelled (gap filling reaches them). Runs before the crossing
         searches, so that the pieces it labels seed them like junction-labelled ones.
+    lone_crossings: label the pieces at a crossing of unlabelled pieces (an X, or a T) from the crossing's own epipolar
+        residual among the junctions the working volume leaves for its pieces, judged as a lone found junction
+        (`reconstruction.lone_crossings`, decision 0139); runs after the piece junctions.
     """
 
     mix_sigma: float = 2.0
