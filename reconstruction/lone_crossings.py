@@ -45,7 +45,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from reconstruction.acute_crossings import epipolar_dir_cam, expected_order_sign, order_sign
-from reconstruction.depth_range_labels import index_stretch
+from reconstruction.depth_range_labels import _k_stretches_meet, index_stretch
 from reconstruction.geometry import depth_cam, epipolar_lines, triangulate_rays
 from reconstruction._jit import njit
 from reconstruction.rigmodel import RigModel
@@ -199,6 +199,20 @@ def _k_crossings(e1, e2, pts, dirs, ends, reach_px, lateral_px, sin_min):
     return A[:m], B[:m], X[:m]
 
 
+@njit
+def _k_group_stretches(xy, g_start, g_stop, R, t, z0, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min):
+    """Per group g (positions g_start[g] … g_stop[g] − 1 of xy; family 1 for even g, 2 for odd): the intersection
+    (lo, hi) of its samples' stretches through the working volume (decision 0128's `_k_stretches_meet`, unwidened);
+    lo = +inf when a ray misses the projector."""
+    G = g_start.shape[0]
+    lo = np.empty(G)
+    hi = np.empty(G)
+    for g in range(G):
+        lo[g], hi[g] = _k_stretches_meet(xy, g_start[g], g_stop[g], g % 2 + 1, R, t, z0, z1, Kp, dist, has_dist, cu, cv, nn, offs,
+                                         index_min, 0.0)
+    return lo, hi
+
+
 def _unique(a: np.ndarray) -> np.ndarray:
     """np.unique of an integer array by a sort (NumPy 2's hash-based unique is slow on these small arrays)."""
     a = np.sort(a, kind="stable")
@@ -340,14 +354,29 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     grp = np.repeat(gp, sz)
     s_all = sid[pos]
     f_all = (grp % 2 + 1).astype(np.intp)
-    lo, hi = index_stretch(model, q[s_all], f_all, (z0, z1))
     G = 2 * K
-    miss = np.bincount(grp, ~(np.isfinite(lo) & np.isfinite(hi)), G) > 0
-    lo_g = np.full(G, -np.inf)
-    hi_g = np.full(G, np.inf)
-    np.maximum.at(lo_g, grp, np.nan_to_num(lo, nan=np.inf))
-    np.minimum.at(hi_g, grp, np.nan_to_num(hi, nan=-np.inf))
     tol_g = np.tile(tol, K)
+    proj = model.procam.projector
+    if proj.dist.size <= 5:
+        # decision 0128's compiled stretches, intersected per group
+        g_start = np.searchsorted(grp, np.arange(G))
+        g_stop = np.searchsorted(grp, np.arange(G), side="right")
+        pat = model.pattern
+        dist = np.zeros(5)
+        dist[: min(5, proj.dist.size)] = np.asarray(proj.dist, np.float64).ravel()[:5]
+        lo_g, hi_g = _k_group_stretches(
+            np.ascontiguousarray(model.cam_normalised(q[s_all]), np.float64), g_start.astype(np.int64), g_stop.astype(np.int64),
+            np.ascontiguousarray(model.procam.R_proj_cam, np.float64), np.ascontiguousarray(model.procam.t_proj_cam, np.float64), z0, z1,
+            np.ascontiguousarray(proj.K, np.float64), dist, bool(proj.has_distortion), float(pat.centre_px[0]), float(pat.centre_px[1]),
+            np.array([pat.n1, pat.n2], np.float64), np.ascontiguousarray(model.line_offsets_px, np.float64), int(model.index_min))
+        miss = ~np.isfinite(lo_g) & (lo_g > 0)
+    else:
+        lo, hi = index_stretch(model, q[s_all], f_all, (z0, z1))
+        miss = np.bincount(grp, ~(np.isfinite(lo) & np.isfinite(hi)), G) > 0
+        lo_g = np.full(G, -np.inf)
+        hi_g = np.full(G, np.inf)
+        np.maximum.at(lo_g, grp, np.nan_to_num(lo, nan=np.inf))
+        np.minimum.at(hi_g, grp, np.nan_to_num(hi, nan=-np.inf))
     k_lo = np.maximum(np.ceil(lo_g - tol_g), model.index_min).astype(np.intp)
     k_hi = np.minimum(np.floor(hi_g + tol_g), model.index_max).astype(np.intp)
     # candidates (i, j) per node: the products of the two ranges
