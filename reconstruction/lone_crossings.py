@@ -67,6 +67,7 @@ class LoneCrossingOptions:
     opposite_deg: float = 25.0
     t_nodes: bool = True
     check_samples: int = 8
+    free_end_trim: float = 3.0
 
 
 @njit
@@ -458,12 +459,14 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
                                        r=np.sqrt([s1[k], s2[k]]), rho=rho[k], n_cand=int(cnt_k[k])))
     stats["nodes_labelled"] = int(accept.sum())
     proposals: dict = {}
+    at_node: set = set()  # the ends (2·piece + side) at an accepted node
     for k in np.flatnonzero(accept).tolist():
         for f, kk in ((1, int(ci[b1[k]])), (2, int(cj[b1[k]]))):
             g = 2 * k + f - 1
             for e in (g_e0[g], g_e1[g]):
                 if e >= 0:
                     proposals.setdefault(int(e_piece[e]), set()).add(kk)
+                    at_node.add(int(e))
     # 5. the pieces whose accepted nodes agree, without their samples within trim_px of either end
     for p_ in sorted(proposals):
         ks = proposals[p_]
@@ -472,7 +475,11 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
             continue
         a_, b_ = starts[p_], stops[p_]
         t = ts[a_:b_]
-        inner = (t - t[0] >= trim_px) & (t[-1] - t >= trim_px)
+        # an end at no accepted node is free (a silhouette, a shadow, another crossing): the cut line's ridge is
+        # pulled over the smoothing kernel's reach there, `free_end_trim` smoothing scales
+        t0 = trim_px if 2 * p_ in at_node else options.free_end_trim * trim_px
+        t1 = trim_px if 2 * p_ + 1 in at_node else options.free_end_trim * trim_px
+        inner = (t - t[0] >= t0) & (t[-1] - t >= t1)
         ss = sid[a_:b_][inner]
         ss = ss[~np.isfinite(index[ss])]
         index[ss] = next(iter(ks))
