@@ -84,3 +84,39 @@ def test_off_labels_nothing_and_is_the_default_path(paper_scenes, monkeypatch):
     # the paper labeller's output stays the paper's method
     reconstruct(img, sc.procam, sc.pattern, options=replace(_options(sc, True), labeller="paper"))
     assert not called
+
+
+def test_small_scene_without_any_junction_label_gets_true_indices(small_scene):
+    """The small scene (tilted plane and sphere) with every junction label taken away: the other steps that label
+    pieces without junctions off, the lone crossings alone label thousands of samples, each with its true line."""
+    import cv2
+
+    from reconstruction.extraction import ExtractOptions, extract_grid, sigma_for
+    from reconstruction.labelling import TraceOptions, label_samples
+    from reconstruction.rigmodel import rig_model
+
+    s = small_scene
+    model = rig_model(s.procam, s.pattern, s.depth_range_mm)
+    obs = extract_grid(s.image, model, options=ExtractOptions())
+    labels = np.full((len(obs.q_junction), 2), UNLABELLED, np.int64)
+    sigma = float(obs.stats.get("sigma_px", sigma_for(model, ExtractOptions())))
+    alone = dict(continue_lines=False, piece_seeds=False, piece_junctions=False, cross_rounds=0, cross_rounds_after=0,
+                 beside_lines_ends=False, surface_labels=False, beside_lines=False, depth_range_labels=False)
+
+    def run(on: bool):
+        return label_samples(obs, labels, sigma_px=sigma, seed_radius_px=float(obs.stats["junction_radius_px"]),
+                             options=TraceOptions(**alone, lone_crossings=on), model=model, depth_range_mm=s.depth_range_mm,
+                             image=s.image, line_width_px=model.line_width_cam_px)
+
+    off, on = run(False), run(True)
+    assert not np.isfinite(off.index).any()
+    new = np.isfinite(on.index)
+    assert on.stats["samples_lone_crossings"] > 1000, on.stats["samples_lone_crossings"]
+    m = on.q[new].astype(np.float32).reshape(-1, 1, 2)
+    qp = cv2.remap(s.truth.q_proj.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderValue=np.nan).reshape(-1, 2)
+    fam = obs.family[new]
+    n = np.where(fam == 1, s.pattern.n1, s.pattern.n2)
+    true = ((qp[:, 1] - s.pattern.centre_px[1]) - n * (qp[:, 0] - s.pattern.centre_px[0])) / s.pattern.pitch_px
+    known = np.isfinite(true)
+    assert known.mean() > 0.95
+    assert np.max(np.abs(true[known] - on.index[new][known])) < 0.3
