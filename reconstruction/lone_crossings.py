@@ -70,6 +70,7 @@ class LoneCrossingOptions:
     t_nodes: bool = True
     check_samples: int = 8
     free_end_trim: float = 3.0
+    node_end_trim: float = 1.0
 
 
 @njit
@@ -327,7 +328,11 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
         e0, e1 = first[f][0][nodes], first[f][1][nodes]
         dfam[f] = e_dir[e0] - np.where((e1 >= 0)[:, None], e_dir[np.maximum(e1, 0)], 0.0)
     exp = expected_order_sign(model, xn[nodes])
-    got = order_sign(epipolar_dir_cam(model, xn[nodes]), dfam[1], dfam[2])
+    e_ep = epipolar_dir_cam(model, xn[nodes])
+    got = order_sign(e_ep, dfam[1], dfam[2])
+    if debug is not None:
+        debug["sin"] = {tuple(np.round(xn[n_], 0)): [float(abs(np.cross(e_ep[k] / np.linalg.norm(e_ep[k]), dfam[f][k] / np.linalg.norm(dfam[f][k]))))
+                                                     for f in (1, 2)] for k, n_ in enumerate(nodes)}
     nodes = nodes[(exp != 0) & (got == exp)]
     if len(nodes) == 0:
         return stats
@@ -479,8 +484,8 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
         t = ts[a_:b_]
         # an end at no accepted node is free (a silhouette, a shadow, another crossing): the cut line's ridge is
         # pulled over the smoothing kernel's reach there, `free_end_trim` smoothing scales
-        t0 = trim_px if 2 * p_ in at_node else options.free_end_trim * trim_px
-        t1 = trim_px if 2 * p_ + 1 in at_node else options.free_end_trim * trim_px
+        t0 = options.node_end_trim * trim_px if 2 * p_ in at_node else options.free_end_trim * trim_px
+        t1 = options.node_end_trim * trim_px if 2 * p_ + 1 in at_node else options.free_end_trim * trim_px
         inner = (t - t[0] >= t0) & (t[-1] - t >= t1)
         ss = sid[a_:b_][inner]
         ss = ss[~np.isfinite(index[ss])]
