@@ -1416,7 +1416,7 @@ def label_samples(
                                       reach_px=0.5 * (cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                              min_angle_deg=options.continue_gap_deg or 45.0)),
                                       lateral_px=options.seed_lateral_px * cell, tol_px=options.depth_range_tol * noise_floor,
-                                      noise_floor_px=noise_floor)
+                                      noise_floor_px=noise_floor, seed=seed)
             stats["samples_lone_crossings"] = lc["samples"]
         if options.surface_labels and options.cross_pieces and model is not None and grid is not None:
             # pieces inside a labelled surface that predicts their index (decision 0093)

@@ -71,6 +71,8 @@ class LoneCrossingOptions:
     check_samples: int = 8
     free_end_trim: float = 3.0
     node_end_trim: float = 1.0
+    far_end_check: bool = True
+    cross_tol_px: float = 1.0
 
 
 @njit
@@ -240,10 +242,13 @@ def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, depth_range_mm, trim_px: float, reach_px: float,
                          lateral_px: float, tol_px: float, noise_floor_px: float,
-                         options: LoneCrossingOptions = LoneCrossingOptions(), debug: dict | None = None) -> dict:
+                         options: LoneCrossingOptions = LoneCrossingOptions(), seed: np.ndarray | None = None,
+                         debug: dict | None = None) -> dict:
     """Label the pieces at crossings of unlabelled pieces (module doc). q (P, 2), fam (P,), index (P,) (NaN: none;
     written in place); the traces as `labelling.label_samples` builds them: sid (n,), piece (n,) non-decreasing, ts
-    (n,) position along the piece (px). Returns counts."""
+    (n,) position along the piece (px). seed (P,) int (`labelling.label_samples`' junction seeds, UNLABELLED where
+    none; None: not written): the labelled samples within 2·trim_px past the trim of an end at an accepted node
+    become seeds with the piece's index. Returns counts."""
     stats = {"nodes": 0, "nodes_labelled": 0, "samples": 0}
     n = len(piece)
     if n == 0:
@@ -261,7 +266,9 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     open_mask = (n_lab == 0) & (stops - starts >= options.min_samples)
     if open_mask.sum() < 3:
         return stats
-    e_pt, e_dir, e_rms, e_end, ok = _k_end_lines(q, sid, ts, starts.astype(np.int64), stops.astype(np.int64), open_mask, float(trim_px))
+    long_mask = stops - starts >= options.min_samples
+    e_pt, e_dir, e_rms, e_end, ok_any = _k_end_lines(q, sid, ts, starts.astype(np.int64), stops.astype(np.int64), long_mask, float(trim_px))
+    ok = ok_any & np.repeat(open_mask, 2)
     e_all = np.flatnonzero(ok)
     e_piece = np.arange(2 * n_p) // 2
     e_fam = np.asarray(fam[sid[starts]])[e_piece]
@@ -274,7 +281,8 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
         return stats
     # nodes: single linkage of the estimates within merge_px
     m = len(X)
-    cp = cKDTree(X).query_pairs(options.merge_share * model.junction_step_cam_px, output_type="ndarray")
+    merge_px = options.merge_share * model.junction_step_cam_px
+    cp = cKDTree(X).query_pairs(merge_px, output_type="ndarray")
     comp = _components(m, cp[:, 0], cp[:, 1]) if len(cp) else np.arange(m)
     is_root = np.zeros(m, bool)
     is_root[comp] = True
@@ -474,11 +482,61 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
                 if e >= 0:
                     proposals.setdefault(int(e_piece[e]), set()).add(kk)
                     at_node.add(int(e))
+    # the far ends: a piece's end at no accepted node that meets a line of the other family (any piece's end line,
+    # labelled or not, crossing its end line ahead of both within reach_px) must meet it, on the piece's sheet,
+    # within cross_tol_px of a line of the other family inside the volume; a piece that runs across a depth edge onto
+    # a collinear line of another surface meets the other family's lines there anywhere (decisions 0066, 0084)
+    if proposals and options.far_end_check:
+        e_other = {f: np.flatnonzero(ok_any & (e_fam == f)) for f in (1, 2)}
+        rows_q, rows_f, rows_k, rows_p = [], [], [], []
+        for p_ in sorted(proposals):
+            if len(proposals[p_]) != 1:
+                continue
+            f = int(fam[sid[starts[p_]]])
+            for e in (2 * p_, 2 * p_ + 1):
+                if e in at_node or not ok_any[e]:
+                    continue
+                _, Be, Xe = _k_crossings(np.array([e], np.int64), e_other[3 - f], e_pt, e_dir, e_end, float(reach_px), float(lateral_px),
+                                         float(np.sin(np.deg2rad(10.0))))
+                if len(Xe):
+                    j = int(np.argmin(np.hypot(Xe[:, 0] - e_end[e, 0], Xe[:, 1] - e_end[e, 1])))
+                    # a crossing of two lines on one surface: the piece's own line goes on through it (an end of
+                    # its family beyond it, facing back, its end line through it); where the piece ends there (a T:
+                    # a silhouette or a shadow beside another surface's line) the end lines meet in empty space
+                    x = Xe[j]
+                    g = e_other[f]
+                    g = g[e_piece[g] != p_]
+                    back = (e_dir[g] @ e_dir[e]) < -cos_opp
+                    r = x[None, :] - e_end[g]
+                    ahead = (r * e_dir[g]).sum(1)
+                    rl = x[None, :] - e_pt[g]
+                    lat = np.abs(rl[:, 0] * e_dir[g, 1] - rl[:, 1] * e_dir[g, 0])
+                    goes_on = bool(np.any(back & (ahead >= -lateral_px) & (ahead <= reach_px) & (lat <= lateral_px)))
+                    # or the other family's line runs through it (its ends on both sides): a crossing of two lines
+                    # whichever surface the piece is on
+                    near = np.hypot(Xe[:, 0] - x[0], Xe[:, 1] - x[1]) <= merge_px
+                    dd = e_dir[Be[near]]
+                    through = bool(np.any(dd @ dd.T < -cos_opp))
+                    if not (goes_on or through):
+                        continue
+                    rows_q.append(x)
+                    rows_f.append(f)
+                    rows_k.append(next(iter(proposals[p_])))
+                    rows_p.append(p_)
+        if rows_q:
+            _, zf, _, dist_f = model.sheet_check(np.array(rows_q), np.array(rows_f), np.array(rows_k))
+            bad_far = ~((dist_f <= options.cross_tol_px) & (zf >= z0) & (zf <= z1))
+            if debug is not None:
+                debug["far"] = [(rows_q[i], rows_f[i], rows_k[i], float(dist_f[i]), float(zf[i]), bool(bad_far[i])) for i in range(len(rows_q))]
+            for p_ in np.array(rows_p)[bad_far].tolist():
+                proposals[p_] = set()
+                stats["pieces_far_end"] = stats.get("pieces_far_end", 0) + 1
     # 5. the pieces whose accepted nodes agree, without their samples within trim_px of either end
     for p_ in sorted(proposals):
         ks = proposals[p_]
         if len(ks) != 1:
-            stats["pieces_conflicting"] = stats.get("pieces_conflicting", 0) + 1
+            if len(ks) > 1:
+                stats["pieces_conflicting"] = stats.get("pieces_conflicting", 0) + 1
             continue
         a_, b_ = starts[p_], stops[p_]
         t = ts[a_:b_]
@@ -487,8 +545,21 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
         t0 = options.node_end_trim * trim_px if 2 * p_ in at_node else options.free_end_trim * trim_px
         t1 = options.node_end_trim * trim_px if 2 * p_ + 1 in at_node else options.free_end_trim * trim_px
         inner = (t - t[0] >= t0) & (t[-1] - t >= t1)
+        kk = next(iter(ks))
+        if seed is not None:
+            # the labelled samples next to the node are the piece's seeds, as a found junction's would be: the
+            # stretch beyond them is then checked at its far end like any seeded piece's (decision 0084: a piece
+            # that runs across a depth edge onto a collinear line of another surface)
+            near = np.zeros(len(t), bool)
+            if 2 * p_ in at_node:
+                near |= (t - t[0] >= t0) & (t - t[0] <= t0 + 2.0 * trim_px)
+            if 2 * p_ + 1 in at_node:
+                near |= (t[-1] - t >= t1) & (t[-1] - t <= t1 + 2.0 * trim_px)
+            sn = sid[a_:b_][near & inner]
+            sn = sn[~np.isfinite(index[sn])]
+            seed[sn] = kk
         ss = sid[a_:b_][inner]
         ss = ss[~np.isfinite(index[ss])]
-        index[ss] = next(iter(ks))
+        index[ss] = kk
         stats["samples"] += len(ss)
     return stats
