@@ -31,7 +31,16 @@ For every crossing of unlabelled pieces:
 5. **Pieces.** The node's pieces take i (family 1) and j (family 2) where every accepted node at a piece agrees;
    their samples within `trim_px` of an end at an accepted node stay unlabelled, as in decision 0128 (gap filling
    reaches them where both sides are labelled), and within `free_end_trim`·`trim_px` of a free end (a silhouette,
-   a shadow: the cut line's ridge is pulled there; with 1σ, one point 1.3 % off on unseen seed 109).
+   a shadow: the cut line's ridge is pulled there; with 1σ, one point 1.3 % off on unseen seed 109). The samples
+   next to a node become seeds, so that decision 0084's far-end check examines the rest of the piece as for a
+   found junction's.
+6. **Free ends.** A piece that runs across a depth edge onto a collinear line of another surface takes a line it
+   is not on (unseen seed 125: 7 points 26 % off). At an end at no accepted node, the crossing with another piece's
+   end line of the other family (ahead of both within `reach_px`) counts when it is a crossing of two lines — the
+   piece's own line goes on beyond it (an end of its family facing back, its end line through it) or the other
+   family's line runs through it (ends on both sides) — and it must then land, triangulated on the piece's sheet k,
+   within `cross_tol_px` projector px of a line of the other family inside the volume (decision 0066's check);
+   otherwise the piece stays unlabelled (`far_end_check`).
 
 Why this is not one-sided evidence (decisions 0049, 0089): nothing is carried from a labelled neighbour; the
 crossing is labelled from its own epipolar line, like a found lone junction, and its pieces are those a found
@@ -59,7 +68,8 @@ class LoneCrossingOptions:
     node. opposite_deg: a family's two ends at a node point apart within this of 180°. t_nodes: a node where
     one family has a single end (a T whose stem is that family) is kept too. check_samples: the samples per piece
     (evenly spaced, both ends included) whose stretches and sheet depths are checked. free_end_trim: the samples
-    within this many `trim_px` of a piece's end at no accepted node stay unlabelled."""
+    within this many `trim_px` of a piece's end at no accepted node stay unlabelled. node_end_trim: the same at an
+    end at an accepted node. far_end_check, cross_tol_px: step 6."""
 
     enabled: bool = True
     min_samples: int = 4
