@@ -229,6 +229,87 @@ def _k_group_stretches(xy, g_start, g_stop, R, t, z0, z1, Kp, dist, has_dist, cu
     return lo, hi
 
 
+@njit
+def _k_free_end_crossings(free, e_fam, usable, e_piece, pts, dirs, ends, reach_px, lateral_px, merge_px, cos_opp, sin_min):
+    """Step 6's crossings: for each free end e (free (m,)), the nearest point X where its end line crosses the end
+    line of a usable end of the other family, ahead of both within reach_px (from −lateral_px), at an angle of at
+    least asin(sin_min); kept (ok) when the piece's own line goes on beyond X (a usable end of its family on another
+    piece, facing back, ahead of X within reach_px, its end line within lateral_px of X) or the other family's line
+    runs through X (two of its ends crossing e's end line within merge_px of X, pointing apart within the
+    opposite cone). Returns X (m, 2) and ok (m,)."""
+    m = free.shape[0]
+    n = e_fam.shape[0]
+    X = np.full((m, 2), np.nan)
+    ok = np.zeros(m, np.bool_)
+    xs = np.empty((n, 2))
+    ids = np.empty(n, np.int64)
+    for u in range(m):
+        a = free[u]
+        fa = e_fam[a]
+        cnt = 0
+        best = -1
+        bd = np.inf
+        for b in range(n):
+            if not usable[b] or e_fam[b] == fa:
+                continue
+            dx = ends[a, 0] - ends[b, 0]
+            dy = ends[a, 1] - ends[b, 1]
+            if dx * dx + dy * dy > 4.0 * reach_px * reach_px:
+                continue
+            den = dirs[a, 0] * dirs[b, 1] - dirs[a, 1] * dirs[b, 0]
+            if abs(den) <= sin_min:
+                continue
+            wx = pts[b, 0] - pts[a, 0]
+            wy = pts[b, 1] - pts[a, 1]
+            t = (wx * dirs[b, 1] - wy * dirs[b, 0]) / den
+            x = pts[a, 0] + t * dirs[a, 0]
+            y = pts[a, 1] + t * dirs[a, 1]
+            ha = (x - ends[a, 0]) * dirs[a, 0] + (y - ends[a, 1]) * dirs[a, 1]
+            hb = (x - ends[b, 0]) * dirs[b, 0] + (y - ends[b, 1]) * dirs[b, 1]
+            if ha < -lateral_px or ha > reach_px or hb < -lateral_px or hb > reach_px:
+                continue
+            xs[cnt, 0] = x
+            xs[cnt, 1] = y
+            ids[cnt] = b
+            d = (x - ends[a, 0]) ** 2 + (y - ends[a, 1]) ** 2
+            if d < bd:
+                bd = d
+                best = cnt
+            cnt += 1
+        if best < 0:
+            continue
+        x = xs[best, 0]
+        y = xs[best, 1]
+        X[u, 0] = x
+        X[u, 1] = y
+        through = False
+        for i in range(cnt):
+            if (xs[i, 0] - x) ** 2 + (xs[i, 1] - y) ** 2 > merge_px * merge_px:
+                continue
+            for j in range(i + 1, cnt):
+                if (xs[j, 0] - x) ** 2 + (xs[j, 1] - y) ** 2 > merge_px * merge_px:
+                    continue
+                bi = ids[i]
+                bj = ids[j]
+                if dirs[bi, 0] * dirs[bj, 0] + dirs[bi, 1] * dirs[bj, 1] < -cos_opp:
+                    through = True
+        goes_on = False
+        for g in range(n):
+            if not usable[g] or e_fam[g] != fa or e_piece[g] == e_piece[a]:
+                continue
+            if dirs[g, 0] * dirs[a, 0] + dirs[g, 1] * dirs[a, 1] >= -cos_opp:
+                continue
+            ahead = (x - ends[g, 0]) * dirs[g, 0] + (y - ends[g, 1]) * dirs[g, 1]
+            if ahead < -lateral_px or ahead > reach_px:
+                continue
+            lat = abs((x - pts[g, 0]) * dirs[g, 1] - (y - pts[g, 1]) * dirs[g, 0])
+            if lat <= lateral_px:
+                goes_on = True
+                break
+        ok[u] = through or goes_on
+    return X, ok
+
+
 def _unique(a: np.ndarray) -> np.ndarray:
     """np.unique of an integer array by a sort (NumPy 2's hash-based unique is slow on these small arrays)."""
     a = np.sort(a, kind="stable")
@@ -497,50 +578,29 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     # within cross_tol_px of a line of the other family inside the volume; a piece that runs across a depth edge onto
     # a collinear line of another surface meets the other family's lines there anywhere (decisions 0066, 0084)
     if proposals and options.far_end_check:
-        e_other = {f: np.flatnonzero(ok_any & (e_fam == f)) for f in (1, 2)}
-        rows_q, rows_f, rows_k, rows_p = [], [], [], []
+        fr_e, fr_p = [], []
         for p_ in sorted(proposals):
             if len(proposals[p_]) != 1:
                 continue
-            f = int(fam[sid[starts[p_]]])
             for e in (2 * p_, 2 * p_ + 1):
-                if e in at_node or not ok_any[e]:
-                    continue
-                _, Be, Xe = _k_crossings(np.array([e], np.int64), e_other[3 - f], e_pt, e_dir, e_end, float(reach_px), float(lateral_px),
-                                         float(np.sin(np.deg2rad(10.0))))
-                if len(Xe):
-                    j = int(np.argmin(np.hypot(Xe[:, 0] - e_end[e, 0], Xe[:, 1] - e_end[e, 1])))
-                    # a crossing of two lines on one surface: the piece's own line goes on through it (an end of
-                    # its family beyond it, facing back, its end line through it); where the piece ends there (a T:
-                    # a silhouette or a shadow beside another surface's line) the end lines meet in empty space
-                    x = Xe[j]
-                    g = e_other[f]
-                    g = g[e_piece[g] != p_]
-                    back = (e_dir[g] @ e_dir[e]) < -cos_opp
-                    r = x[None, :] - e_end[g]
-                    ahead = (r * e_dir[g]).sum(1)
-                    rl = x[None, :] - e_pt[g]
-                    lat = np.abs(rl[:, 0] * e_dir[g, 1] - rl[:, 1] * e_dir[g, 0])
-                    goes_on = bool(np.any(back & (ahead >= -lateral_px) & (ahead <= reach_px) & (lat <= lateral_px)))
-                    # or the other family's line runs through it (its ends on both sides): a crossing of two lines
-                    # whichever surface the piece is on
-                    near = np.hypot(Xe[:, 0] - x[0], Xe[:, 1] - x[1]) <= merge_px
-                    dd = e_dir[Be[near]]
-                    through = bool(np.any(dd @ dd.T < -cos_opp))
-                    if not (goes_on or through):
-                        continue
-                    rows_q.append(x)
-                    rows_f.append(f)
-                    rows_k.append(next(iter(proposals[p_])))
-                    rows_p.append(p_)
-        if rows_q:
-            _, zf, _, dist_f = model.sheet_check(np.array(rows_q), np.array(rows_f), np.array(rows_k))
-            bad_far = ~((dist_f <= options.cross_tol_px) & (zf >= z0) & (zf <= z1))
-            if debug is not None:
-                debug["far"] = [(rows_q[i], rows_f[i], rows_k[i], float(dist_f[i]), float(zf[i]), bool(bad_far[i])) for i in range(len(rows_q))]
-            for p_ in np.array(rows_p)[bad_far].tolist():
-                proposals[p_] = set()
-                stats["pieces_far_end"] = stats.get("pieces_far_end", 0) + 1
+                if e not in at_node and ok_any[e]:
+                    fr_e.append(e)
+                    fr_p.append(p_)
+        if fr_e:
+            fr_e = np.array(fr_e, np.int64)
+            Xf, okf = _k_free_end_crossings(fr_e, e_fam.astype(np.int64), ok_any, e_piece.astype(np.int64), e_pt, e_dir, e_end, float(reach_px),
+                                            float(lateral_px), float(merge_px), float(cos_opp), float(np.sin(np.deg2rad(10.0))))
+            if okf.any():
+                sel = np.flatnonzero(okf)
+                ff = e_fam[fr_e[sel]]
+                kf = np.array([next(iter(proposals[fr_p[i]])) for i in sel.tolist()])
+                _, zf, _, dist_f = model.sheet_check(Xf[sel], ff, kf)
+                bad_far = ~((dist_f <= options.cross_tol_px) & (zf >= z0) & (zf <= z1))
+                if debug is not None:
+                    debug["far"] = [(Xf[i], int(ff[t]), int(kf[t]), float(dist_f[t]), float(zf[t]), bool(bad_far[t])) for t, i in enumerate(sel.tolist())]
+                for t in np.flatnonzero(bad_far).tolist():
+                    proposals[fr_p[sel[t]]] = set()
+                    stats["pieces_far_end"] = stats.get("pieces_far_end", 0) + 1
     # 5. the pieces whose accepted nodes agree, without their samples within trim_px of either end
     for p_ in sorted(proposals):
         ks = proposals[p_]
