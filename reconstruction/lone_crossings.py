@@ -357,9 +357,8 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     open_mask = (n_lab == 0) & (stops - starts >= options.min_samples)
     if open_mask.sum() < 3:
         return stats
-    long_mask = stops - starts >= options.min_samples
-    e_pt, e_dir, e_rms, e_end, ok_any = _k_end_lines(q, sid, ts, starts.astype(np.int64), stops.astype(np.int64), long_mask, float(trim_px))
-    ok = ok_any & np.repeat(open_mask, 2)
+    starts64, stops64 = starts.astype(np.int64), stops.astype(np.int64)
+    e_pt, e_dir, e_rms, e_end, ok = _k_end_lines(q, sid, ts, starts64, stops64, open_mask, float(trim_px))
     e_all = np.flatnonzero(ok)
     e_piece = np.arange(2 * n_p) // 2
     e_fam = np.asarray(fam[sid[starts]])[e_piece]
@@ -578,6 +577,9 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     # within cross_tol_px of a line of the other family inside the volume; a piece that runs across a depth edge onto
     # a collinear line of another surface meets the other family's lines there anywhere (decisions 0066, 0084)
     if proposals and options.far_end_check:
+        # the end lines of every piece long enough (labelled ones too): the lines a free end may cross
+        long_mask = stops - starts >= options.min_samples
+        e_pt, e_dir, e_rms, e_end, ok_any = _k_end_lines(q, sid, ts, starts64, stops64, long_mask, float(trim_px))
         fr_e, fr_p = [], []
         for p_ in sorted(proposals):
             if len(proposals[p_]) != 1:
