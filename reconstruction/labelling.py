@@ -34,6 +34,7 @@ from reconstruction.edge_cuts import edge_misfits
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import camera_rays_proj, epipolar_lines, paper_epipolar_mb
 from reconstruction.piece_junctions import label_piece_junctions
+from reconstruction.lone_crossings import label_lone_crossings
 from reconstruction.piece_seeds import seed_one_sided
 from reconstruction.surface_labels import label_from_surface
 from reconstruction.limb_lines import label_beside_lines
@@ -889,6 +890,9 @@ class TraceOptions:
         (`LabelOptions.noise_floor_px`), pieces of at least cross_min_samples samples; the samples within
         cross_trim_sigma·σ of a piece's ends stay unlabelled (gap filling reaches them). Runs before the crossing
         searches, so that the pieces it labels seed them like junction-labelled ones.
+    lone_crossings: label the pieces at a crossing of unlabelled pieces (an X, or a T) from the crossing's own epipolar
+        residual among the junctions the working volume leaves for its pieces, judged as a lone found junction
+        (`reconstruction.lone_crossings`, decision 0139); runs after the piece junctions.
     """
 
     mix_sigma: float = 2.0
@@ -928,6 +932,7 @@ class TraceOptions:
     beside_lines_ends: bool = True
     depth_range_labels: bool = True
     depth_range_tol: float = 3.0
+    lone_crossings: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -1483,6 +1488,15 @@ def label_samples(
                                        lateral_px=options.seed_lateral_px * cell, q_out=q_out, t_nodes=options.t_nodes,
                                        label_options=None if label_options is None else replace(label_options, min_component=3))
             stats["samples_piece_junctions"] = pj["samples"]
+        if options.lone_crossings and model is not None:
+            # the pieces at a crossing of unlabelled pieces that the crossing's epipolar line names (decision 0139)
+            lc = label_lone_crossings(q, fam, sid, piece, ts, index, model=model, depth_range_mm=depth_range_mm,
+                                      trim_px=options.cross_trim_sigma * sigma_px,
+                                      reach_px=0.5 * (cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
+                                                                             min_angle_deg=options.continue_gap_deg or 45.0)),
+                                      lateral_px=options.seed_lateral_px * cell, tol_px=options.depth_range_tol * noise_floor,
+                                      noise_floor_px=noise_floor, seed=seed)
+            stats["samples_lone_crossings"] = lc["samples"]
         if options.surface_labels and options.cross_pieces and model is not None and grid is not None:
             # pieces inside a labelled surface that predicts their index (decision 0093)
             sf = label_from_surface(q, fam, sid, piece, ts, index, seed_jid, model=model, depth_range_mm=depth_range_mm,

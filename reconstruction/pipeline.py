@@ -219,11 +219,11 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
         sigma = _sigma(obs, model, options)
         seed_r = float(obs.stats.get("junction_radius_px", 0.4 * model.junction_step_cam_px))
         trace = options.trace
-        if options.labeller == "paper" and (trace.piece_junctions or trace.depth_range_labels):
+        if options.labeller == "paper" and (trace.piece_junctions or trace.depth_range_labels or trace.lone_crossings):
             # decision 0092's junctions at the crossings of pieces are labelled by the default labeller's machinery:
             # the paper labeller's output stays the paper's method (its junctions, extended along the lines); decision
             # 0128's pieces named by the working volume too
-            trace = replace(trace, piece_junctions=False, depth_range_labels=False)
+            trace = replace(trace, piece_junctions=False, depth_range_labels=False, lone_crossings=False)
         sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=trace, model=model,
                            depth_range_mm=(options.depth_min_mm, options.depth_max_mm), image=image,
                            line_width_px=model.line_width_cam_px, prep=frame.prep, label_options=lo)
@@ -410,6 +410,7 @@ def _triangulate(
         "samples_piece_junctions": int(sample_stats.get("samples_piece_junctions", 0)),
         "samples_beside_lines": int(sample_stats.get("samples_beside_lines", 0)),
         "samples_depth_range": int(sample_stats.get("samples_depth_range", 0)),
+        "samples_lone_crossings": int(sample_stats.get("samples_lone_crossings", 0)),
         "samples_crossing_filled": int(cp.stats["samples_crossing_filled"]) if cp is not None else 0,
         "samples_one_sided_filled": int(cp.stats.get("samples_one_sided_filled", 0)) if cp is not None else 0,
         "samples_border_filled": int(cp.stats.get("samples_border_filled", 0)) if cp is not None else 0,
