@@ -13,7 +13,6 @@ import pytest
 import reconstruction.labelling as labelling
 from benchmarks._common import bench_scenes, coverage_lines, relative_errors, render_scene, sample_bilinear
 from benchmarks.grazing_faces import true_lines
-from reconstruction.lone_crossings import label_lone_crossings
 from reconstruction.pipeline import ReconstructOptions, reconstruct
 from reconstruction.rigmodel import UNLABELLED
 
