@@ -2572,6 +2572,17 @@ def kept_samples(valid, near_other, seed, unlabelled):
 
 
 @njit
+def seeds_among(k_idx, seed, unlabelled):
+    """The number of samples k_idx that are seeds (seed != unlabelled): `kept_samples`' count when the kept samples
+    are known already (decision 0140)."""
+    n = 0
+    for m in range(k_idx.shape[0]):
+        if seed[k_idx[m]] != unlabelled:
+            n += 1
+    return n
+
+
+@njit
 def labelled_positions(index, sid):
     """The trace positions whose sample carries an index, (g,) intp increasing (= np.flatnonzero(np.isfinite(
     index[sid]))), and the number of positions without one."""

@@ -35,6 +35,7 @@ from reconstruction.edge_cuts import edge_misfits
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import camera_rays_proj, epipolar_lines, paper_epipolar_mb
 from reconstruction.piece_junctions import label_piece_junctions
+from reconstruction.lone_crossings import label_lone_crossings
 from reconstruction.piece_seeds import seed_one_sided
 from reconstruction.surface_labels import label_from_surface
 from reconstruction.limb_lines import label_beside_lines
@@ -902,6 +903,9 @@ class TraceOptions:
         along the epipolar lines). Needs `label_samples(..., ambiguous_labels=)`; it only ever removes labels.
     ambiguity_guard_protect_seeded: the samples labelled by the labelled junctions' seeds (step 4, before any other
         step) are neither read nor unlabelled by the guard: an accepted component outranks an ambiguous one's best.
+    lone_crossings: label the pieces at a crossing of unlabelled pieces (an X, or a T) from the crossing's own epipolar
+        residual among the junctions the working volume leaves for its pieces, judged as a lone found junction
+        (`reconstruction.lone_crossings`, decision 0139); runs after the piece junctions.
     """
 
     mix_sigma: float = 2.0
@@ -943,6 +947,7 @@ class TraceOptions:
     depth_range_tol: float = 3.0
     ambiguity_guard: bool = True
     ambiguity_guard_protect_seeded: bool = True
+    lone_crossings: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -1116,12 +1121,13 @@ def _crossing_seeds(q, fam, sid, piece, ts_all, tangent, index, seed_jid, model:
 
 
 def _sample_grid(q: np.ndarray, valid: np.ndarray, sid: np.ndarray, cell_px: float, fam: np.ndarray | None = None,
-                 prep: SamplePrep | None = None) -> tuple:
+                 prep: SamplePrep | None = None, pos_of: np.ndarray | None = None) -> tuple:
     """The bucket grid of the valid samples in cells cell_px wide that the crossing searches share, with
     each sample's trace position (`_label_kernels.sample_grid`): (x0, y0, cell, gw, gh, start, items, pos_of).
     With fam (P,): each cell's items split by family (`_label_kernels.sample_grid_split`, decision 0090),
     taken from prep.grids when the extraction stage built it on this cell (decision 0115; prep must be
-    these samples' and valid prep.valid)."""
+    these samples' and valid prep.valid). pos_of: `_label_kernels.positions_of(len(q), sid)` when the caller has it
+    (decision 0140)."""
     if fam is None:
         x0, y0, gw, gh, start, items, pos_of = _k.sample_grid(q, valid, sid, float(cell_px))
     else:
@@ -1129,7 +1135,8 @@ def _sample_grid(q: np.ndarray, valid: np.ndarray, sid: np.ndarray, cell_px: flo
         if g is None:
             g = _k.sample_grid_cells(q, valid, fam, float(cell_px))
         x0, y0, gw, gh, start, items = g
-        pos_of = _k.positions_of(len(q), sid)
+        if pos_of is None:
+            pos_of = _k.positions_of(len(q), sid)
     return float(x0), float(y0), float(cell_px), int(gw), int(gh), start, items, pos_of
 
 
@@ -1204,7 +1211,8 @@ class SamplePrep:
     no label either, built in the same stage (decision 0115): ("valid", cell) the valid samples' grid split by
     family (`_label_kernels.sample_grid_cells`, `trace_grid_cell_px`), ("family", cell) every sample's
     (`crossing_fill.family_grid`); read-only, looked up by the stage that needs them and built there when
-    absent."""
+    absent. traces: the trace pieces and what follows from them alone (`TracePrep`, decision 0140; None: built by
+    label_samples)."""
 
     cell: int
     valid: np.ndarray
@@ -1218,6 +1226,7 @@ class SamplePrep:
     ridge: np.ndarray | None
     key: tuple
     grids: dict = field(default_factory=dict)
+    traces: TracePrep | None = None
 
     def check(self, n_samples: int, sigma_px: float, options: TraceOptions, image: np.ndarray | None) -> None:
         """ValueError unless this was prepared for these samples, σ, options and image."""
@@ -1227,17 +1236,92 @@ class SamplePrep:
                              f"not {want[:4]} (or for another image); pass the prepare_samples result of this frame and options, or None")
 
 
+@dataclass(frozen=True, eq=False)
+class TracePrep:
+    """`label_samples`' trace pieces, built before any label is known (decision 0140): the pieces are linked from the
+    kept samples, and those are the valid samples outside the mixing zone (`_label_kernels.kept_samples`); a seed
+    in the mixing zone is snapped and labelled on its own, never linked. So the pieces, and what is computed from
+    them and the image alone, need no label.
+
+    key: the options they were built with (`_trace_key`). k_idx (K,) the kept samples, n_mix the valid samples in
+    the mixing zone; order, piece, ts, tangent: `_label_kernels.traces_from_segments` (or `traces_of`) on k_idx;
+    sid = k_idx[order]; pos_of (P,) each sample's trace position (`_label_kernels.positions_of`, None: not built);
+    drop (n,) float32 the cut-profile measure at every trace position (`_profile_drop_traces`, None: not built) for
+    line width drop_width_px. Read-only: the label stage reads them and writes none of them."""
+
+    key: tuple
+    k_idx: np.ndarray
+    n_mix: int
+    order: np.ndarray
+    piece: np.ndarray
+    ts: np.ndarray
+    tangent: np.ndarray
+    sid: np.ndarray
+    pos_of: np.ndarray | None = None
+    drop: np.ndarray | None = None
+    drop_width_px: float | None = None
+
+
+def _trace_key(options: TraceOptions) -> tuple:
+    """The options the trace pieces depend on (besides the samples, σ, mix_sigma and the ridge: `_prep_key`)."""
+    return (bool(options.from_segments), float(options.link_px), float(options.lateral_px), float(options.max_turn_deg),
+            float(options.direction_px), float(options.max_ridge_step))
+
+
+def _trace_pieces(obs: GridObservation, q: np.ndarray, fam: np.ndarray, k_idx: np.ndarray, cell: int, r, c, H, W,
+                  ridge: np.ndarray | None, options: TraceOptions) -> tuple:
+    """Step 3's linking: the trace pieces of the kept samples k_idx (order, piece, ts, tangent), from extraction's
+    segments (decision 0085) or by linking the samples again."""
+    P = len(q)
+    use_ridge = ridge is not None and options.max_ridge_step > 0
+    seg_linked = getattr(obs, "segment_linked", None)
+    if options.from_segments and seg_linked is not None and len(seg_linked) == P:
+        # one linking: extraction's segments, ordered along their fitted lines and cut (decision 0085)
+        return _k.traces_from_segments(
+            q, fam, np.asarray(seg_linked, np.int64), np.ascontiguousarray(obs.segment_centre, np.float64).reshape(-1, 2),
+            np.ascontiguousarray(obs.segment_dir, np.float64).reshape(-1, 2), k_idx, float(options.link_px * cell),
+            float(options.lateral_px), float(np.cos(np.deg2rad(options.max_turn_deg))), max(1, int(round(options.direction_px))),
+            ridge if use_ridge else np.zeros(0, np.float32), np.float32(options.max_ridge_step), use_ridge)
+    return _k.traces_of(
+        q, fam, r, c, k_idx.astype(np.intp), int(H), int(W), float(options.link_px * cell), float(options.lateral_px),
+        float(np.cos(np.deg2rad(options.max_turn_deg))), max(1, int(round(options.direction_px))),
+        ridge if use_ridge else np.zeros(0, np.float32), np.float32(options.max_ridge_step), use_ridge)
+
+
+def _prepare_traces(obs: GridObservation, q: np.ndarray, fam: np.ndarray, cell: int, valid, near_other, r, c, H, W,
+                    blurred, ridge, options: TraceOptions, line_width_px: float | None) -> TracePrep:
+    """`TracePrep` of these samples (decision 0140): the kept samples, their pieces, every position's trace
+    position and, with line_width_px and an image (and max_profile_drop > 0), the cut-profile measure at every
+    trace position."""
+    # the kept samples need no seed (`_label_kernels.kept_samples` only counts the seeds among them)
+    k_idx, n_mix, _ = _k.kept_samples(valid, near_other, np.full(len(q), UNLABELLED, np.int64), UNLABELLED)
+    if len(k_idx):
+        order, piece, ts, tangent = _trace_pieces(obs, q, fam, k_idx, cell, r, c, H, W, ridge, options)
+    else:  # nothing kept: label_samples builds no pieces either
+        order, piece, ts, tangent = np.zeros(0, np.intp), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2))
+    sid = k_idx[order]
+    pos_of = _k.positions_of(len(q), sid)
+    drop = None
+    width = None
+    if blurred is not None and line_width_px and options.max_profile_drop > 0 and len(sid):
+        width = float(line_width_px)
+        drop = _profile_drop_traces(blurred, q, sid, tangent, np.arange(len(sid), dtype=np.intp), width, ridge)
+    return TracePrep(_trace_key(options), k_idx, int(n_mix), order, piece, ts, tangent, sid, pos_of, drop, width)
+
+
 def _prep_key(n_samples: int, sigma_px: float, options: TraceOptions, image: np.ndarray | None) -> tuple:
     return (int(n_samples), float(sigma_px), float(options.mix_sigma), image is not None and options.max_ridge_step > 0,
             None if image is None else id(image))
 
 
 def prepare_samples(obs: GridObservation, *, sigma_px: float, options: TraceOptions = TraceOptions(),
-                    image: np.ndarray | None = None, grid_cell_px: float | None = None) -> SamplePrep:
+                    image: np.ndarray | None = None, grid_cell_px: float | None = None, traces: bool = False,
+                    line_width_px: float | None = None) -> SamplePrep:
     """`label_samples`' measurements that need no label (SamplePrep): the samples' cells, the mixing zone, the
     box-filtered image and the ridge brightness at the samples. Same arguments as label_samples; grid_cell_px
     (`trace_grid_cell_px(model, options)`): the valid samples' bucket grid on that cell too (SamplePrep.grids,
-    decision 0115; None: built by label_samples)."""
+    decision 0115; None: built by label_samples). traces: the trace pieces too (SamplePrep.traces, decision 0140),
+    with line_width_px (label_samples' own) the cut-profile measure at every trace position."""
     q = np.ascontiguousarray(np.asarray(obs.q, np.float64).reshape(-1, 2))
     fam = np.ascontiguousarray(np.asarray(obs.family).reshape(-1), np.intp)
     key = _prep_key(len(q), sigma_px, options, image)
@@ -1252,7 +1336,10 @@ def prepare_samples(obs: GridObservation, *, sigma_px: float, options: TraceOpti
     near_other = _k.mixing_zone(r, c, fam, valid, int(H), int(W), *_disk_offsets(rad))
     blurred = _box3(image) if image is not None else None
     ridge = _ridge_brightness(blurred, q) if image is not None and options.max_ridge_step > 0 else None
-    prep = SamplePrep(cell, valid, r, c, int(H), int(W), int(n_valid), near_other, blurred, ridge, key)
+    tp = None
+    if traces:
+        tp = _prepare_traces(obs, q, fam, cell, valid, near_other, r, c, H, W, blurred, ridge, options, line_width_px)
+    prep = SamplePrep(cell, valid, r, c, int(H), int(W), int(n_valid), near_other, blurred, ridge, key, traces=tp)
     if grid_cell_px is not None:
         prep.grids[("valid", float(grid_cell_px))] = _k.sample_grid_cells(q, valid, fam, float(grid_cell_px))
     return prep
@@ -1343,8 +1430,14 @@ def label_samples(
                                    bool(options.snap_mixing), UNLABELLED, seed, seed_jid, q_out, index)
         if options.snap_mixing:
             stats["snapped_to_junction_line"] = int(n_snap)
-    # the kept samples (outside the mixing zone) and the two counts, in one pass (decision 0087)
-    k_idx, n_mix, n_seeds = _k.kept_samples(valid, near_other, seed, UNLABELLED)
+    # the kept samples (outside the mixing zone) and the two counts, in one pass (decision 0087); the kept samples and
+    # their trace pieces need no label and may come from the extraction stage (decision 0140)
+    tp = prep.traces if prep.traces is not None and prep.traces.key == _trace_key(options) else None
+    if tp is None:
+        k_idx, n_mix, n_seeds = _k.kept_samples(valid, near_other, seed, UNLABELLED)
+    else:
+        k_idx, n_mix = tp.k_idx, tp.n_mix
+        n_seeds = _k.seeds_among(k_idx, seed, UNLABELLED)
     stats["mixing_zone"] = int(n_mix) - stats["snapped_to_junction_line"]
     stats["seeds"] = int(n_seeds)
     # 3. Trace pieces and the nearest seed along each.
@@ -1352,21 +1445,11 @@ def label_samples(
     blurred = prep.blurred
     r, c, H, W = prep.r, prep.c, prep.H, prep.W
     if len(k_idx):
-        use_ridge = ridge is not None and options.max_ridge_step > 0
-        seg_linked = getattr(obs, "segment_linked", None)
-        if options.from_segments and seg_linked is not None and len(seg_linked) == P:
-            # one linking: extraction's segments, ordered along their fitted lines and cut (decision 0085)
-            order, piece, ts, tangent = _k.traces_from_segments(
-                q, fam, np.asarray(seg_linked, np.int64), np.ascontiguousarray(obs.segment_centre, np.float64).reshape(-1, 2),
-                np.ascontiguousarray(obs.segment_dir, np.float64).reshape(-1, 2), k_idx, float(options.link_px * cell),
-                float(options.lateral_px), float(np.cos(np.deg2rad(options.max_turn_deg))), max(1, int(round(options.direction_px))),
-                ridge if use_ridge else np.zeros(0, np.float32), np.float32(options.max_ridge_step), use_ridge)
+        if tp is None:
+            order, piece, ts, tangent = _trace_pieces(obs, q, fam, k_idx, cell, r, c, H, W, ridge, options)
+            sid = k_idx[order]
         else:
-            order, piece, ts, tangent = _k.traces_of(
-                q, fam, r, c, k_idx.astype(np.intp), int(H), int(W), float(options.link_px * cell), float(options.lateral_px),
-                float(np.cos(np.deg2rad(options.max_turn_deg))), max(1, int(round(options.direction_px))),
-                ridge if use_ridge else np.zeros(0, np.float32), np.float32(options.max_ridge_step), use_ridge)
-        sid = k_idx[order]
+            order, piece, ts, tangent, sid = tp.order, tp.piece, tp.ts, tp.tangent, tp.sid
         stats["traces"] = int(piece[-1]) + 1
         got, n_seeded, n_conflicting = _k.spread_seeds(sid, piece, ts, seed, seed_jid, index, UNLABELLED)
         stats["traces_seeded"] = int(n_seeded)
@@ -1391,7 +1474,8 @@ def label_samples(
             if options.continue_gap_deg > 0:
                 reach_cont = max(reach_cont, cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                      min_angle_deg=options.continue_gap_deg))
-            grid = _sample_grid(q, valid, sid, trace_grid_cell_px(model, options), fam, prep)
+            grid = _sample_grid(q, valid, sid, trace_grid_cell_px(model, options), fam, prep,
+                                pos_of=None if tp is None else tp.pos_of)
         noise_floor = (label_options or LabelOptions()).noise_floor_px
         if options.depth_range_labels and model is not None:
             # pieces the working volume alone names (decision 0128)
@@ -1442,6 +1526,16 @@ def label_samples(
                                        label_options=None if label_options is None else replace(label_options, min_component=3))
             stats["samples_piece_junctions"] = pj["samples"]
             _guard()
+        if options.lone_crossings and model is not None:
+            # the pieces at a crossing of unlabelled pieces that the crossing's epipolar line names (decision 0139)
+            lc = label_lone_crossings(q, fam, sid, piece, ts, index, model=model, depth_range_mm=depth_range_mm,
+                                      trim_px=options.cross_trim_sigma * sigma_px,
+                                      reach_px=0.5 * (cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
+                                                                             min_angle_deg=options.continue_gap_deg or 45.0)),
+                                      lateral_px=options.seed_lateral_px * cell, tol_px=options.depth_range_tol * noise_floor,
+                                      noise_floor_px=noise_floor, seed=seed)
+            stats["samples_lone_crossings"] = lc["samples"]
+            _guard()
         if options.surface_labels and options.cross_pieces and model is not None and grid is not None:
             # pieces inside a labelled surface that predicts their index (decision 0093)
             sf = label_from_surface(q, fam, sid, piece, ts, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
@@ -1484,7 +1578,11 @@ def label_samples(
         stats["samples_unseeded"] = int(n_unseeded)
         cut_samples = np.zeros(0, np.intp)
         if image is not None and line_width_px and options.max_profile_drop > 0:
-            cut = _profile_drop_traces(blurred, q, sid, tangent, g, float(line_width_px), ridge) > options.max_profile_drop
+            if tp is not None and tp.drop is not None and tp.drop_width_px == float(line_width_px):
+                drop = tp.drop[g]  # every trace position's, measured in the extraction stage (decision 0140)
+            else:
+                drop = _profile_drop_traces(blurred, q, sid, tangent, g, float(line_width_px), ridge)
+            cut = drop > options.max_profile_drop
             cut_samples = sid[g[cut]]
             index[cut_samples] = np.nan
             stats["cut_profile"] = int(len(cut_samples))

@@ -48,7 +48,10 @@ class ReconstructOptions:
     (ray–light-plane), not only the junctions. extract, label: the stages' own options (label's depth
     range is replaced by the one here), trace: how line samples inherit their line's index; crossing:
     points through the crossings' gaps of lines labelled on both sides (decision 0086; default labeller only;
-    decision 0092's `trace.piece_junctions` is off with the paper labeller too)."""
+    decision 0092's `trace.piece_junctions` is off with the paper labeller too). traces_in_extraction: the line
+    samples' trace pieces and the cut-profile measure along them, which need no label, are built in the extraction
+    stage (`extract_frame`, decision 0140) so that the two stages' threads carry similar loads; off: in the label
+    stage, as before. The outputs are the same either way."""
 
     labeller: Literal["epipolar", "paper"] = "epipolar"
     depth_min_mm: float = 100.0
@@ -61,6 +64,7 @@ class ReconstructOptions:
     one_sided: OneSidedFillOptions = OneSidedFillOptions()  # decision 0099: a labelled end to its crossing (with `crossing` on)
     border: BorderFillOptions = BorderFillOptions()  # decision 0104: a labelled end to the image border (with `crossing` on)
     sheet_precision: SheetPrecisionOptions = SheetPrecisionOptions()  # decision 0131: samples on sheets along the epipolar lines
+    traces_in_extraction: bool = True  # decision 0140: the trace pieces (no label in them) built by extract_frame; outputs identical either way
 
     def __post_init__(self) -> None:
         if self.labeller not in ("epipolar", "paper"):
@@ -173,8 +177,10 @@ def extract_frame(
         # work, so that the two threads of a stream carry similar loads (decision 0107); the samples' bucket grid
         # too (decision 0115)
         sigma = _sigma(obs, model, options)
+        # the trace pieces and the cut-profile measure along them need no label either (decision 0140)
         prep = prepare_samples(obs, sigma_px=sigma, options=options.trace, image=image,
-                               grid_cell_px=trace_grid_cell_px(model, options.trace))
+                               grid_cell_px=trace_grid_cell_px(model, options.trace), traces=options.traces_in_extraction,
+                               line_width_px=model.line_width_cam_px)
         if options.labeller == "epipolar" and options.crossing.enabled:
             gcell = fill_grid_cell_px(sigma, float(_step_px(obs)), options.crossing)
             prep.grids[("family", float(gcell))] = family_grid(obs.q, obs.family, gcell)
@@ -213,11 +219,11 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
         sigma = _sigma(obs, model, options)
         seed_r = float(obs.stats.get("junction_radius_px", 0.4 * model.junction_step_cam_px))
         trace = options.trace
-        if options.labeller == "paper" and (trace.piece_junctions or trace.depth_range_labels):
+        if options.labeller == "paper" and (trace.piece_junctions or trace.depth_range_labels or trace.lone_crossings):
             # decision 0092's junctions at the crossings of pieces are labelled by the default labeller's machinery:
             # the paper labeller's output stays the paper's method (its junctions, extended along the lines); decision
             # 0128's pieces named by the working volume too
-            trace = replace(trace, piece_junctions=False, depth_range_labels=False)
+            trace = replace(trace, piece_junctions=False, depth_range_labels=False, lone_crossings=False)
         sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=trace, model=model,
                            depth_range_mm=(options.depth_min_mm, options.depth_max_mm), image=image,
                            line_width_px=model.line_width_cam_px, prep=frame.prep, label_options=lo,
@@ -406,6 +412,7 @@ def _triangulate(
         "samples_beside_lines": int(sample_stats.get("samples_beside_lines", 0)),
         "samples_depth_range": int(sample_stats.get("samples_depth_range", 0)),
         "samples_ambiguity_guard": int(sample_stats.get("samples_ambiguity_guard", 0)),  # decision 0141: labels taken back
+        "samples_lone_crossings": int(sample_stats.get("samples_lone_crossings", 0)),
         "samples_crossing_filled": int(cp.stats["samples_crossing_filled"]) if cp is not None else 0,
         "samples_one_sided_filled": int(cp.stats.get("samples_one_sided_filled", 0)) if cp is not None else 0,
         "samples_border_filled": int(cp.stats.get("samples_border_filled", 0)) if cp is not None else 0,

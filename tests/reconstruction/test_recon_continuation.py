@@ -30,8 +30,10 @@ def _stage(s):
 
 def _samples(s, model, obs, labels, **trace):
     # the continuation measured on its own: decision 0089's piece seeds, decision 0092's piece junctions,
-    # decision 0093's surface labels and decision 0103's lines beside labelled lines (after it) off unless asked for
-    trace = {"piece_seeds": False, "piece_junctions": False, "surface_labels": False, "beside_lines": False, **trace}
+    # decision 0093's surface labels, decision 0103's lines beside labelled lines and decision 0139's lone crossings
+    # (after it) off unless asked for
+    trace = {"piece_seeds": False, "piece_junctions": False, "surface_labels": False, "beside_lines": False, "lone_crossings": False,
+             **trace}
     return label_samples(obs, labels, sigma_px=float(obs.stats.get("sigma_px", sigma_for(model, ExtractOptions()))),
                          seed_radius_px=float(obs.stats["junction_radius_px"]), options=TraceOptions(**trace), model=model,
                          depth_range_mm=s.depth_range_mm, image=s.image, line_width_px=model.line_width_cam_px)

@@ -17,8 +17,8 @@ from tests.reconstruction._truth import true_index
 
 # the step (off by default) measured on its own: the steps that also fill a hole in the junction labels (the
 # continuation and decision 0089's piece seeds, both before it, and decision 0103's lines beside labelled lines,
-# after it) off
-_ALONE = {"continue_lines": False, "piece_seeds": False, "piece_junctions": True, "beside_lines": False}
+# after it) off; decision 0139's lone crossings (after it) too
+_ALONE = {"continue_lines": False, "piece_seeds": False, "piece_junctions": True, "beside_lines": False, "lone_crossings": False}
 
 
 def _samples(s, model, obs, labels, debug=None, **trace):

@@ -29,7 +29,8 @@ def _run(procam, pattern, image, depth_range, keep_junction):
 
     def run(on: bool):
         return label_samples(obs, lab, sigma_px=sigma, seed_radius_px=float(obs.stats["junction_radius_px"]),
-                             options=dataclasses.replace(TraceOptions(), piece_seeds=on, piece_junctions=False, beside_lines_ends=False), model=model, depth_range_mm=depth_range,
+                             options=dataclasses.replace(TraceOptions(), piece_seeds=on, piece_junctions=False, beside_lines_ends=False,
+                                                         lone_crossings=False), model=model, depth_range_mm=depth_range,
                              image=image, line_width_px=model.line_width_cam_px)
 
     return obs, run(False), run(True)

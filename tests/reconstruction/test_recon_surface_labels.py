@@ -17,7 +17,7 @@ from tests.reconstruction._truth import object_at, true_index
 
 # the other steps that label pieces without junctions are off, so that the surface labels have work to do
 _ALONE = dict(continue_lines=False, piece_seeds=False, piece_junctions=False, cross_rounds=0, cross_rounds_after=0,
-              beside_lines_ends=False)  # decision 0106: an end is left to the fillings once a step here labels its facing piece
+              beside_lines_ends=False, lone_crossings=False)  # decision 0106: an end is left to the fillings once a step here labels its facing piece
 
 
 def _synthetic_grid(rng, n=400, cell=7.0):

@@ -99,7 +99,8 @@ def _run(s, image, loose: bool = False, clusters: bool = True, **trace):
     from reconstruction.labelling import LabelOptions
 
     o = ReconstructOptions(depth_min_mm=s.depth_range_mm[0], depth_max_mm=s.depth_range_mm[1])
-    o = dataclasses.replace(o, trace=dataclasses.replace(o.trace, **trace))
+    # the T nodes measured as decision 0098 did: without decision 0139's lone crossings (after them)
+    o = dataclasses.replace(o, trace=dataclasses.replace(o.trace, **{"lone_crossings": False, **trace}))
     orig = L.label_piece_junctions
     if loose:  # decision 0092's looser X test alone: one family through, no T rule
         # clusters False: the labeller as decision 0098 measured it (before decisions 0108 and 0109)
