@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from reconstruction import _ambiguity_kernels as _ak
 from reconstruction import _label_kernels as _k
+from reconstruction.ambiguity_guard import Guard
 from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.depth_range_labels import label_pieces as label_depth_range_pieces
 from reconstruction.edge_cuts import edge_misfits
@@ -150,6 +151,8 @@ class Labels:
     residual: np.ndarray
     component: np.ndarray
     stats: dict = field(default_factory=dict)
+    ambiguous_best: np.ndarray | None = None  # (M, 2): junctions of components of at least 3 left out as ambiguous,
+    # their labels under the component's best offset (UNLABELLED elsewhere; decision 0141's guard); None: not recorded
 
 
 def clean_edges(n_junctions: int, edges: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
@@ -339,11 +342,11 @@ def _choice_of(model, rel, ln, xy_cam, options, stats, _inlier_retry, status, n_
         lim = min(_outlier_limit(r_full, options) if limit is None else limit, retry_limit_px)
         inl = np.isfinite(r_full) & (r_full <= lim)
         if not _inlier_retry or inl.all() or inl.sum() < options.min_split_component:
-            return _Choice("ambiguous", rms=rms)
+            return _Choice("ambiguous", lab, rms=rms)  # the best offset's labels: decision 0141's guard reads them
         sub = _choose_offset(model, rel[inl], ln[inl], xy_cam[inl], options, stats, _inlier_retry=False,
                              members=None if members is None else members[inl], graph=graph)
         if sub.reason is not None or not np.array_equal(sub.labels[0] - rel[inl][0], lab[0] - rel[0]):
-            return _Choice("ambiguous", rms=rms)
+            return _Choice("ambiguous", lab, rms=rms)
         return _Choice(None, lab, r_full, inside, rms, limit=lim)  # the inliers' limit: the same unless tightened
     return _Choice(None, lab, r_full, inside, rms)
 
@@ -424,6 +427,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     """
     M = len(obs.q_junction)
     labels = np.full((M, 2), UNLABELLED, np.int64)
+    amb_best = np.full((M, 2), UNLABELLED, np.int64)  # ambiguous components' best-offset labels (decision 0141)
     residual = np.full(M, np.nan)
     stats = {"components": 0, "components_labelled": 0, "ambiguous": 0, "out_of_pattern": 0, "out_of_depth_range": 0,
              "too_small": 0, "components_split": 0, "contradicting_edges": 0, "junctions_left_out": {}}
@@ -604,6 +608,8 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
                 left[ch.reason] += m
                 if ch.reason == "ambiguous":
                     stats["ambiguous"] += 1
+                    if ch.labels is not None and m >= options.min_split_component:
+                        amb_best[members] = ch.labels  # decision 0141
                 continue
             r = ch.residual
             # the inliers (finite residual within the outlier limit, inside the depth range) take their labels:
@@ -641,7 +647,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             next_id += 1
             work.append((outl[g], rounds + 1, -1, True))
     stats["junctions_left_out"] = left
-    return Labels(labels, residual, component, stats)
+    return Labels(labels, residual, component, stats, amb_best)
 
 
 def solve_base_point(m: np.ndarray, b: np.ndarray, h: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -890,6 +896,13 @@ class TraceOptions:
         (`LabelOptions.noise_floor_px`), pieces of at least cross_min_samples samples; the samples within
         cross_trim_sigma·σ of a piece's ends stay unlabelled (gap filling reaches them). Runs before the crossing
         searches, so that the pieces it labels seed them like junction-labelled ones.
+    ambiguity_guard: after every labelling step, a labelled sample on the line of a junction whose component
+        `label_epipolar` left out as ambiguous (within the seed radius and seed_lateral_px, as a seed) must carry that
+        junction's index under the component's best offset; otherwise its piece loses its label
+        (`reconstruction.ambiguity_guard`, decision 0141: a line continued across a depth edge by a lattice vector
+        along the epipolar lines). Needs `label_samples(..., ambiguous_labels=)`; it only ever removes labels.
+    ambiguity_guard_protect_seeded: the samples labelled by the labelled junctions' seeds (step 4, before any other
+        step) are neither read nor unlabelled by the guard: an accepted component outranks an ambiguous one's best.
     lone_crossings: label the pieces at a crossing of unlabelled pieces (an X, or a T) from the crossing's own epipolar
         residual among the junctions the working volume leaves for its pieces, judged as a lone found junction
         (`reconstruction.lone_crossings`, decision 0139); runs after the piece junctions.
@@ -932,6 +945,8 @@ class TraceOptions:
     beside_lines_ends: bool = True
     depth_range_labels: bool = True
     depth_range_tol: float = 3.0
+    ambiguity_guard: bool = True
+    ambiguity_guard_protect_seeded: bool = True
     lone_crossings: bool = True
 
 
@@ -1351,6 +1366,7 @@ def label_samples(
     line_width_px: float | None = None,
     prep: SamplePrep | None = None,
     label_options: LabelOptions | None = None,
+    ambiguous_labels: np.ndarray | None = None,
 ) -> SampleLabels:
     """Give every line sample the index of its line, following the visible trace of the line from the
     labelled junctions on it.
@@ -1373,7 +1389,10 @@ def label_samples(
     image=image)` when the caller computed it already (the pipeline does, in the extraction stage; decision
     0107); None: computed here. label_options: the frame's `LabelOptions` (the pipeline passes its own), used with
     min_component 3 to label decision 0092's piece junctions (None: LabelOptions(min_component=3)), so that
-    settings such as the epipolar floor (decision 0110) reach them too. Order: seeds and traces, crossing pieces, continuation, one more crossing
+    settings such as the epipolar floor (decision 0110) reach them too. ambiguous_labels (M, 2): the best-offset labels
+    of the junctions `label_epipolar` left out as ambiguous (`Labels.ambiguous_best`; UNLABELLED elsewhere): with
+    `ambiguity_guard`, after every labelling step a piece labelled otherwise on such a junction's line loses its
+    label (decision 0141, `reconstruction.ambiguity_guard`); None: no guard. Order: seeds and traces, crossing pieces, continuation, one more crossing
     round (`cross_rounds_after`), cut profiles, gap filling.
 
     Speed: the per-sample steps (valid samples and their cells, mixing zone, seeds, trace linking and
@@ -1435,6 +1454,19 @@ def label_samples(
         got, n_seeded, n_conflicting = _k.spread_seeds(sid, piece, ts, seed, seed_jid, index, UNLABELLED)
         stats["traces_seeded"] = int(n_seeded)
         stats["traces_conflicting"] = int(n_conflicting)
+        guard = None
+        if options.ambiguity_guard and ambiguous_labels is not None and len(ambiguous_labels) == len(lab):
+            # sample labels an ambiguous junction component rules out (decision 0141): checked after every step
+            guard = Guard(q, fam, valid, obs.q_junction, obs.junction_dir, ambiguous_labels, float(seed_radius_px),
+                          float(options.seed_lateral_px), index if options.ambiguity_guard_protect_seeded else None)
+            if len(guard.pair_s) == 0:
+                guard = None
+
+        def _guard() -> None:
+            if guard is not None:
+                guard(index, seed_jid, piece, sid)
+
+        _guard()
         grid = None
         if model is not None and (options.cross_pieces or options.continue_lines):
             # the continuation's reach: a share of the junction step, and at least a crossing's gap (decision 0072)
@@ -1450,12 +1482,14 @@ def label_samples(
             stats["samples_depth_range"] = label_depth_range_pieces(
                 model, q, fam, sid, piece, ts, index, depth_range_mm, tol_px=options.depth_range_tol * noise_floor,
                 min_samples=options.cross_min_samples, trim_px=options.cross_trim_sigma * sigma_px)
+            _guard()
         cross_state: dict = {}  # the crossing searches' results, carried to the round after the continuation
         if options.cross_pieces and model is not None:
             stats["samples_from_crossings"] = _crossing_seeds(
                 q, fam, sid, piece, ts, tangent, index, seed_jid, model, depth_range_mm,
                 options.cross_radius * model.junction_step_cam_px, options.cross_trim_sigma * sigma_px, options, grid,
                 state=cross_state)
+            _guard()
         if options.continue_lines and model is not None:
             cont = continue_lines(q, fam, sid, piece, ts, tangent, index, seed_jid, valid, model=model, depth_range_mm=depth_range_mm,
                                   reach_px=reach_cont, check_radius_px=options.continue_reach * model.junction_step_cam_px,
@@ -1463,6 +1497,7 @@ def label_samples(
                                   anchor=options.fill_anchor, trim_px=options.cross_trim_sigma * sigma_px, grid=grid)
             stats["samples_continued"] = cont["samples"]
             stats["pieces_continuation_failed"] = cont["pieces_failed"]
+            _guard()
             if options.cross_pieces and options.cross_rounds_after and cont["samples"]:
                 # the continued pieces are labelled neighbours too: the crossings with them label the
                 # pieces across (decision 0074), with the same check
@@ -1470,6 +1505,7 @@ def label_samples(
                     q, fam, sid, piece, ts, tangent, index, seed_jid, model, depth_range_mm,
                     options.cross_radius * model.junction_step_cam_px, options.cross_trim_sigma * sigma_px,
                     options, grid, rounds=options.cross_rounds_after, state=cross_state)
+                _guard()
         if options.piece_seeds and options.cross_pieces and model is not None and grid is not None:
             # pieces one labelled crossing names and the next crossing confirms on their own sheet (decision 0089)
             ps = seed_one_sided(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
@@ -1477,6 +1513,7 @@ def label_samples(
                                 trim_px=options.cross_trim_sigma * sigma_px, tol_px=options.cross_residual_px,
                                 min_samples=options.cross_min_samples, anchor=options.fill_anchor)
             stats["samples_piece_seeds"] = ps["samples"]
+            _guard()
         if options.piece_junctions and options.cross_pieces and model is not None and grid is not None:
             # junctions at the crossings of pieces where extraction found none (decision 0092)
             pj = label_piece_junctions(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
@@ -1488,6 +1525,7 @@ def label_samples(
                                        lateral_px=options.seed_lateral_px * cell, q_out=q_out, t_nodes=options.t_nodes,
                                        label_options=None if label_options is None else replace(label_options, min_component=3))
             stats["samples_piece_junctions"] = pj["samples"]
+            _guard()
         if options.lone_crossings and model is not None:
             # the pieces at a crossing of unlabelled pieces that the crossing's epipolar line names (decision 0139)
             lc = label_lone_crossings(q, fam, sid, piece, ts, index, model=model, depth_range_mm=depth_range_mm,
@@ -1497,6 +1535,7 @@ def label_samples(
                                       lateral_px=options.seed_lateral_px * cell, tol_px=options.depth_range_tol * noise_floor,
                                       noise_floor_px=noise_floor, seed=seed)
             stats["samples_lone_crossings"] = lc["samples"]
+            _guard()
         if options.surface_labels and options.cross_pieces and model is not None and grid is not None:
             # pieces inside a labelled surface that predicts their index (decision 0093)
             sf = label_from_surface(q, fam, sid, piece, ts, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
@@ -1504,6 +1543,7 @@ def label_samples(
                                     trim_px=options.cross_trim_sigma * sigma_px, min_samples=options.cross_min_samples,
                                     rounds=options.surface_rounds)
             stats["samples_surface_labels"] = sf["samples"]
+            _guard()
         if options.beside_lines and options.cross_pieces and model is not None and grid is not None:
             # pieces beside a labelled line of their family, confirmed at both crossings on their sheet (decision 0103)
             bl = label_beside_lines(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm,
@@ -1514,6 +1554,7 @@ def label_samples(
                                     tol_px=options.cross_residual_px, lateral_px=options.seed_lateral_px * cell,
                                     min_samples=options.cross_min_samples, anchor=options.fill_anchor, ends=options.beside_lines_ends)
             stats["samples_beside_lines"] = bl["samples"]
+            _guard()
         if options.far_end_check and model is not None and grid is not None:
             # a seeded trace that ran across a depth edge onto a collinear line of another surface: the
             # crossing at its far end names another line (decision 0084, `reconstruction.trace_ends`)
@@ -1552,5 +1593,8 @@ def label_samples(
             cand = _k.gap_candidates(valid, index, sid, piece, cut_samples)
             reach = (options.mix_sigma + options.cross_trim_sigma) * sigma_px + 2.0
             stats["samples_gap_filled"] = _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, cand, reach, options, lab_pos)
+        _guard()
+        if guard is not None:
+            stats["samples_ambiguity_guard"] = guard.n
     stats["samples_labelled"] = int(_k.drop_unlabelled_junctions(index, seed_jid))
     return SampleLabels(index, q_out, seed_jid, stats)

@@ -226,7 +226,8 @@ def finish_frame(frame: ExtractedFrame) -> Reconstruction:
             trace = replace(trace, piece_junctions=False, depth_range_labels=False, lone_crossings=False)
         sl = label_samples(obs, lab.labels, sigma_px=sigma, seed_radius_px=seed_r, options=trace, model=model,
                            depth_range_mm=(options.depth_min_mm, options.depth_max_mm), image=image,
-                           line_width_px=model.line_width_cam_px, prep=frame.prep, label_options=lo)
+                           line_width_px=model.line_width_cam_px, prep=frame.prep, label_options=lo,
+                           ambiguous_labels=lab.ambiguous_best)
     cp = None
     if sl is not None and options.labeller == "epipolar" and options.crossing.enabled:
         # points through crossings whose line is labelled on both sides (decision 0086); the paper labeller's
@@ -410,6 +411,7 @@ def _triangulate(
         "samples_piece_junctions": int(sample_stats.get("samples_piece_junctions", 0)),
         "samples_beside_lines": int(sample_stats.get("samples_beside_lines", 0)),
         "samples_depth_range": int(sample_stats.get("samples_depth_range", 0)),
+        "samples_ambiguity_guard": int(sample_stats.get("samples_ambiguity_guard", 0)),  # decision 0141: labels taken back
         "samples_lone_crossings": int(sample_stats.get("samples_lone_crossings", 0)),
         "samples_crossing_filled": int(cp.stats["samples_crossing_filled"]) if cp is not None else 0,
         "samples_one_sided_filled": int(cp.stats.get("samples_one_sided_filled", 0)) if cp is not None else 0,
