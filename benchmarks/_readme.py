@@ -37,7 +37,17 @@ FILTERS = {
     "bench_faults": lambda c: c[1] == "0.05" or c[0] == "all kinds",
     # The paper's experiment: the noisy rows (exact and calibration-error rows are in paper.md).
     "paper": lambda c: c[1] == "noisy",
+    # The random scenes: those with a warning, under 85 % coverage or over 0.25 % of points more than 1 % off (all in unseen.md).
+    "unseen": lambda c: c[11] != "" or _num(c[7]) < 85.0 or _num(c[10]) > 0.25,
 }
+
+
+def _num(cell: str) -> float:
+    """A table cell as a number; NaN for the en dash of a missing value."""
+    try:
+        return float(cell)
+    except ValueError:
+        return float("nan")
 
 
 def block(name: str) -> str:
