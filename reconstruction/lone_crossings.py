@@ -86,6 +86,69 @@ class LoneCrossingOptions:
 
 
 @njit
+def _fit_end(q, sid, ts, a, b, p, e, trim_px, ends, pts, dirs, rms, ok):
+    """`_k_end_lines` for end e (0: start, 1: stop) of the piece p at positions a … b − 1 (its end samples
+    already in `ends`): the end line's point, outward direction and fit RMS, ok[2·p + e] when at least 2 samples fit."""
+    # pass 1: counts and sums of the core (trim … 3·trim from the end) and of everything within 3·trim
+    nc = 0
+    na = 0
+    for k in range(b - a):
+        pos = a + k if e == 0 else b - 1 - k
+        d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
+        if d > 3.0 * trim_px:
+            break
+        na += 1
+        if d >= trim_px:
+            nc += 1
+    use_core = nc >= 3
+    nn = nc if use_core else na
+    if nn < 2:
+        return
+    sx = 0.0
+    sy = 0.0
+    for k in range(na):
+        pos = a + k if e == 0 else b - 1 - k
+        d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
+        if use_core and d < trim_px:
+            continue
+        sx += q[sid[pos], 0]
+        sy += q[sid[pos], 1]
+    mx = sx / nn
+    my = sy / nn
+    cxx = 0.0
+    cyy = 0.0
+    cxy = 0.0
+    for k in range(na):
+        pos = a + k if e == 0 else b - 1 - k
+        d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
+        if use_core and d < trim_px:
+            continue
+        dx = q[sid[pos], 0] - mx
+        dy = q[sid[pos], 1] - my
+        cxx += dx * dx
+        cyy += dy * dy
+        cxy += dx * dy
+    cxx /= nn
+    cyy /= nn
+    cxy /= nn
+    ang = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
+    ux = np.cos(ang)
+    uy = np.sin(ang)
+    lam = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
+    i = 2 * p + e
+    o = 2 * p + 1 - e
+    if (ends[i, 0] - ends[o, 0]) * ux + (ends[i, 1] - ends[o, 1]) * uy < 0:
+        ux = -ux
+        uy = -uy
+    pts[i, 0] = mx
+    pts[i, 1] = my
+    dirs[i, 0] = ux
+    dirs[i, 1] = uy
+    rms[i] = np.sqrt(max(lam, 0.0))
+    ok[i] = True
+
+
+@njit
 def _k_end_lines(q, sid, ts, starts, stops, open_mask, trim_px):
     """Step 1's end lines: per piece and end (e = 2·piece + side) the end line's point, outward direction, fit RMS,
     end sample and whether it is usable (an open piece with at least 2 samples in the fit)."""
@@ -105,63 +168,7 @@ def _k_end_lines(q, sid, ts, starts, stops, open_mask, trim_px):
         if not open_mask[p]:
             continue
         for e in range(2):
-            # pass 1: counts and sums of the core (trim … 3·trim from the end) and of everything within 3·trim
-            nc = 0
-            na = 0
-            for k in range(b - a):
-                pos = a + k if e == 0 else b - 1 - k
-                d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
-                if d > 3.0 * trim_px:
-                    break
-                na += 1
-                if d >= trim_px:
-                    nc += 1
-            use_core = nc >= 3
-            nn = nc if use_core else na
-            if nn < 2:
-                continue
-            sx = 0.0
-            sy = 0.0
-            for k in range(na):
-                pos = a + k if e == 0 else b - 1 - k
-                d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
-                if use_core and d < trim_px:
-                    continue
-                sx += q[sid[pos], 0]
-                sy += q[sid[pos], 1]
-            mx = sx / nn
-            my = sy / nn
-            cxx = 0.0
-            cyy = 0.0
-            cxy = 0.0
-            for k in range(na):
-                pos = a + k if e == 0 else b - 1 - k
-                d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
-                if use_core and d < trim_px:
-                    continue
-                dx = q[sid[pos], 0] - mx
-                dy = q[sid[pos], 1] - my
-                cxx += dx * dx
-                cyy += dy * dy
-                cxy += dx * dy
-            cxx /= nn
-            cyy /= nn
-            cxy /= nn
-            ang = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
-            ux = np.cos(ang)
-            uy = np.sin(ang)
-            lam = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
-            i = 2 * p + e
-            o = 2 * p + 1 - e
-            if (ends[i, 0] - ends[o, 0]) * ux + (ends[i, 1] - ends[o, 1]) * uy < 0:
-                ux = -ux
-                uy = -uy
-            pts[i, 0] = mx
-            pts[i, 1] = my
-            dirs[i, 0] = ux
-            dirs[i, 1] = uy
-            rms[i] = np.sqrt(max(lam, 0.0))
-            ok[i] = True
+            _fit_end(q, sid, ts, a, b, p, e, trim_px, ends, pts, dirs, rms, ok)
     return pts, dirs, rms, ends, ok
 
 
@@ -310,6 +317,265 @@ def _k_free_end_crossings(free, e_fam, usable, e_piece, pts, dirs, ends, reach_p
     return X, ok
 
 
+@njit
+def _k_nodes(A, B, X, e_pt, e_dir, e_piece, e_fam, n_e, merge_px, lateral_px, cos_opp, t_nodes):
+    """Step 1's nodes from the crossings (A, B, X) of `_k_crossings`, in one pass: the estimates within merge_px
+    linked (single linkage; a node is numbered by its lowest estimate), the node at their mean, and the node's
+    ends of each family. Returns the node count N, xn (N, 2), bad (N,) (an end at two nodes, an end line beyond
+    lateral_px, a family with no end or more than two, two ends of one piece or not on opposite sides, no family
+    with two ends; without t_nodes also a family with one end), and per node and family (column f − 1) its first
+    and second end (e0, e1; −1: none)."""
+    m = X.shape[0]
+    r2 = merge_px * merge_px
+    parent = np.arange(m)
+    for i in range(m):
+        for j in range(i + 1, m):
+            dx = X[i, 0] - X[j, 0]
+            dy = X[i, 1] - X[j, 1]
+            if dx * dx + dy * dy <= r2:
+                a = i
+                while parent[a] != a:
+                    a = parent[a]
+                b = j
+                while parent[b] != b:
+                    b = parent[b]
+                if a != b:
+                    parent[max(a, b)] = min(a, b)
+    for i in range(m):
+        parent[i] = parent[parent[i]]
+    node_id = np.full(m, -1, np.int64)
+    N = 0
+    for i in range(m):
+        if parent[i] == i:
+            node_id[i] = N
+            N += 1
+    node_of = np.empty(m, np.int64)
+    for i in range(m):
+        node_of[i] = node_id[parent[i]]
+    xn = np.zeros((N, 2))
+    cnt = np.zeros(N)
+    for i in range(m):
+        xn[node_of[i], 0] += X[i, 0]
+        xn[node_of[i], 1] += X[i, 1]
+        cnt[node_of[i]] += 1.0
+    for k in range(N):
+        xn[k, 0] = xn[k, 0] / cnt[k]
+        xn[k, 1] = xn[k, 1] / cnt[k]
+    # the node's ends, each once, sorted by node and end
+    keys = np.empty(2 * m, np.int64)
+    for i in range(m):
+        keys[i] = node_of[i] * n_e + A[i]
+        keys[m + i] = node_of[i] * n_e + B[i]
+    keys = np.sort(keys)
+    nu = 0
+    for i in range(2 * m):
+        if i == 0 or keys[i] != keys[i - 1]:
+            keys[nu] = keys[i]
+            nu += 1
+    bad = np.zeros(N, np.bool_)
+    per_end = np.zeros(n_e, np.int64)
+    for u in range(nu):
+        per_end[keys[u] % n_e] += 1
+    c = np.zeros((N, 2), np.int64)
+    e0 = np.full((N, 2), -1, np.int64)
+    e1 = np.full((N, 2), -1, np.int64)
+    for u in range(nu):
+        k = keys[u] // n_e
+        e = keys[u] % n_e
+        if per_end[e] > 1:
+            bad[k] = True
+        rx = xn[k, 0] - e_pt[e, 0]
+        ry = xn[k, 1] - e_pt[e, 1]
+        if abs(rx * e_dir[e, 1] - ry * e_dir[e, 0]) > lateral_px:
+            bad[k] = True
+        f = e_fam[e] - 1
+        if c[k, f] == 0:
+            e0[k, f] = e
+        elif c[k, f] == 1:
+            e1[k, f] = e
+        c[k, f] += 1
+    for k in range(N):
+        n_two = 0
+        for f in range(2):
+            ck = c[k, f]
+            if ck == 0 or ck > 2 or (ck == 1 and not t_nodes):
+                bad[k] = True
+            if ck == 2:
+                n_two += 1
+                a = e0[k, f]
+                b = e1[k, f]
+                if e_piece[a] == e_piece[b] or e_dir[a, 0] * e_dir[b, 0] + e_dir[a, 1] * e_dir[b, 1] > -cos_opp:
+                    bad[k] = True
+            else:
+                e1[k, f] = -1
+                if ck != 1:
+                    e0[k, f] = -1
+        if n_two < 1:
+            bad[k] = True
+    return N, xn, bad, e0, e1
+
+
+@njit
+def _k_open_pieces(piece, sid, index, min_samples):
+    """The pieces of the traces (piece (n,) non-decreasing, numbered 0 … n_p − 1): their first and past-the-end
+    positions, and the open ones (no sample labelled, at least min_samples samples)."""
+    n = piece.shape[0]
+    n_p = 1
+    for s in range(1, n):
+        if piece[s] != piece[s - 1]:
+            n_p += 1
+    starts = np.empty(n_p, np.int64)
+    stops = np.empty(n_p, np.int64)
+    open_mask = np.zeros(n_p, np.bool_)
+    p = 0
+    starts[0] = 0
+    for s in range(1, n + 1):
+        if s == n or piece[s] != piece[s - 1]:
+            stops[p] = s
+            p += 1
+            if s < n:
+                starts[p] = s
+    for p in range(n_p):
+        if stops[p] - starts[p] < min_samples:
+            continue
+        lab = False
+        for s in range(starts[p], stops[p]):
+            if np.isfinite(index[sid[s]]):
+                lab = True
+                break
+        open_mask[p] = not lab
+    return starts, stops, open_mask
+
+
+@njit
+def _k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, done, pts, dirs, rms, ends, ok, trim_px, reach_px,
+                lateral_px, merge_px, cos_opp, sin_min):
+    """`_k_free_end_crossings` with the end lines of the long pieces (long_mask) fitted only where read: `done`
+    marks the ends whose fit (pts, dirs, rms, ok; updated in place) is already there; the other family's ends only
+    within 2·reach_px, the own family's only where the other family's line does not run through X."""
+    m = free.shape[0]
+    n = e_fam.shape[0]
+    X = np.full((m, 2), np.nan)
+    okf = np.zeros(m, np.bool_)
+    xs = np.empty((n, 2))
+    ids = np.empty(n, np.int64)
+    for u in range(m):
+        a = free[u]
+        fa = e_fam[a]
+        cnt = 0
+        best = -1
+        bd = np.inf
+        for b in range(n):
+            if e_fam[b] == fa or not long_mask[e_piece[b]]:
+                continue
+            dx = ends[a, 0] - ends[b, 0]
+            dy = ends[a, 1] - ends[b, 1]
+            if dx * dx + dy * dy > 4.0 * reach_px * reach_px:
+                continue
+            if not done[b]:
+                p = e_piece[b]
+                _fit_end(q, sid, ts, starts[p], stops[p], p, b - 2 * p, trim_px, ends, pts, dirs, rms, ok)
+                done[b] = True
+            if not ok[b]:
+                continue
+            den = dirs[a, 0] * dirs[b, 1] - dirs[a, 1] * dirs[b, 0]
+            if abs(den) <= sin_min:
+                continue
+            wx = pts[b, 0] - pts[a, 0]
+            wy = pts[b, 1] - pts[a, 1]
+            t = (wx * dirs[b, 1] - wy * dirs[b, 0]) / den
+            x = pts[a, 0] + t * dirs[a, 0]
+            y = pts[a, 1] + t * dirs[a, 1]
+            ha = (x - ends[a, 0]) * dirs[a, 0] + (y - ends[a, 1]) * dirs[a, 1]
+            hb = (x - ends[b, 0]) * dirs[b, 0] + (y - ends[b, 1]) * dirs[b, 1]
+            if ha < -lateral_px or ha > reach_px or hb < -lateral_px or hb > reach_px:
+                continue
+            xs[cnt, 0] = x
+            xs[cnt, 1] = y
+            ids[cnt] = b
+            d = (x - ends[a, 0]) ** 2 + (y - ends[a, 1]) ** 2
+            if d < bd:
+                bd = d
+                best = cnt
+            cnt += 1
+        if best < 0:
+            continue
+        x = xs[best, 0]
+        y = xs[best, 1]
+        X[u, 0] = x
+        X[u, 1] = y
+        through = False
+        for i in range(cnt):
+            if (xs[i, 0] - x) ** 2 + (xs[i, 1] - y) ** 2 > merge_px * merge_px:
+                continue
+            for j in range(i + 1, cnt):
+                if (xs[j, 0] - x) ** 2 + (xs[j, 1] - y) ** 2 > merge_px * merge_px:
+                    continue
+                bi = ids[i]
+                bj = ids[j]
+                if dirs[bi, 0] * dirs[bj, 0] + dirs[bi, 1] * dirs[bj, 1] < -cos_opp:
+                    through = True
+        if through:
+            okf[u] = True
+            continue
+        goes_on = False
+        for g in range(n):
+            if e_fam[g] != fa or e_piece[g] == e_piece[a] or not long_mask[e_piece[g]]:
+                continue
+            if not done[g]:
+                p = e_piece[g]
+                _fit_end(q, sid, ts, starts[p], stops[p], p, g - 2 * p, trim_px, ends, pts, dirs, rms, ok)
+                done[g] = True
+            if not ok[g]:
+                continue
+            if dirs[g, 0] * dirs[a, 0] + dirs[g, 1] * dirs[a, 1] >= -cos_opp:
+                continue
+            ahead = (x - ends[g, 0]) * dirs[g, 0] + (y - ends[g, 1]) * dirs[g, 1]
+            if ahead < -lateral_px or ahead > reach_px:
+                continue
+            lat = abs((x - pts[g, 0]) * dirs[g, 1] - (y - pts[g, 1]) * dirs[g, 0])
+            if lat <= lateral_px:
+                goes_on = True
+                break
+        okf[u] = goes_on
+    return X, okf
+
+
+@njit
+def _k_label_pieces(pp, kk, at_node, starts, stops, ts, sid, index, seed, has_seed, t_node, t_free, trim_px):
+    """Step 5 for the pieces pp (ascending) with their one index kk: every sample farther than t_node (an end at
+    an accepted node, at_node[2·piece + side]) or t_free (a free end) from the piece's ends and not labelled takes
+    kk in index; with has_seed, those within 2·trim_px past the trim of an end at a node take it in seed first.
+    Returns the count of samples labelled."""
+    total = 0
+    for u in range(pp.shape[0]):
+        p = pp[u]
+        a = starts[p]
+        b = stops[p]
+        k = kk[u]
+        n0 = at_node[2 * p]
+        n1 = at_node[2 * p + 1]
+        t0 = t_node if n0 else t_free
+        t1 = t_node if n1 else t_free
+        ta = ts[a]
+        tb = ts[b - 1]
+        if has_seed:
+            for s in range(a, b):
+                inner = (ts[s] - ta >= t0) and (tb - ts[s] >= t1)
+                near = False
+                if n0 and ts[s] - ta >= t0 and ts[s] - ta <= t0 + 2.0 * trim_px:
+                    near = True
+                if n1 and tb - ts[s] >= t1 and tb - ts[s] <= t1 + 2.0 * trim_px:
+                    near = True
+                if near and inner and not np.isfinite(index[sid[s]]):
+                    seed[sid[s]] = k
+        for s in range(a, b):
+            if (ts[s] - ta >= t0) and (tb - ts[s] >= t1) and not np.isfinite(index[sid[s]]):
+                index[sid[s]] = k
+                total += 1
+    return total
+
+
 def _unique(a: np.ndarray) -> np.ndarray:
     """np.unique of an integer array by a sort (NumPy 2's hash-based unique is slow on these small arrays)."""
     a = np.sort(a, kind="stable")
@@ -349,19 +615,15 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     piece = np.asarray(piece, np.intp)
     sid = np.asarray(sid, np.intp)
     ts = np.asarray(ts, np.float64)
-    starts = np.flatnonzero(np.r_[True, piece[1:] != piece[:-1]])
-    stops = np.r_[starts[1:], n]
+    starts, stops, open_mask = _k_open_pieces(piece, sid, index, int(options.min_samples))
     n_p = len(starts)
-    lab = np.isfinite(index[sid])
-    n_lab = np.bincount(piece, lab, n_p)
-    open_mask = (n_lab == 0) & (stops - starts >= options.min_samples)
     if open_mask.sum() < 3:
         return stats
-    starts64, stops64 = starts.astype(np.int64), stops.astype(np.int64)
+    starts64, stops64 = starts, stops
     e_pt, e_dir, e_rms, e_end, ok = _k_end_lines(q, sid, ts, starts64, stops64, open_mask, float(trim_px))
     e_all = np.flatnonzero(ok)
-    e_piece = np.arange(2 * n_p) // 2
-    e_fam = np.asarray(fam[sid[starts]])[e_piece]
+    e_piece = np.arange(2 * n_p, dtype=np.int64) // 2
+    e_fam = np.asarray(fam[sid[starts]], np.int64)[e_piece]
     if debug is not None:
         debug.update(e_end=e_end[e_all], e_fam=e_fam[e_all], e_dir=e_dir[e_all], e_piece=e_piece[e_all], e_pt=e_pt[e_all])
     # 1. pairs of ends of the two families near each other, and where their end lines cross
@@ -369,51 +631,12 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
                            float(np.sin(np.deg2rad(10.0))))
     if len(A) == 0:
         return stats
-    # nodes: single linkage of the estimates within merge_px
-    m = len(X)
+    # nodes: single linkage of the estimates within merge_px, their ends, the shape tests (one compiled pass)
     merge_px = options.merge_share * model.junction_step_cam_px
-    cp = cKDTree(X).query_pairs(merge_px, output_type="ndarray")
-    comp = _components(m, cp[:, 0], cp[:, 1]) if len(cp) else np.arange(m)
-    is_root = np.zeros(m, bool)
-    is_root[comp] = True
-    N = int(is_root.sum())
-    node_of = (np.cumsum(is_root) - 1)[comp]
-    cnt = np.bincount(node_of, minlength=N).astype(np.float64)
-    xn = np.stack([np.bincount(node_of, X[:, 0], N), np.bincount(node_of, X[:, 1], N)], axis=1) / cnt[:, None]
-    # the node's ends (each end once per node)
-    ent = _unique(np.concatenate([node_of * (2 * n_p) + A, node_of * (2 * n_p) + B]))
-    en_node, en_end = ent // (2 * n_p), ent % (2 * n_p)
-    en_fam = e_fam[en_end]
-    bad = np.zeros(N, bool)
-    # an end at two nodes: neither
-    per_end = np.bincount(en_end, minlength=2 * n_p)
-    bad[en_node[per_end[en_end] > 1]] = True
-    # every end line passes within lateral_px of the node
-    r = xn[en_node] - e_pt[en_end]
-    lat = np.abs(r[:, 0] * e_dir[en_end, 1] - r[:, 1] * e_dir[en_end, 0])
-    bad[en_node[lat > lateral_px]] = True
-    # per family: one or two ends; two: of two pieces, on opposite sides
     cos_opp = np.cos(np.deg2rad(options.opposite_deg))
-    n_two = np.zeros(N, np.intp)
-    first = {}
-    for f in (1, 2):
-        sel = en_fam == f
-        c = np.bincount(en_node[sel], minlength=N)
-        bad |= (c == 0) | (c > 2)
-        if not options.t_nodes:
-            bad |= c == 1
-        n_two += c == 2
-        nd, ee = en_node[sel], en_end[sel]  # sorted by node (ent is sorted)
-        st = np.searchsorted(nd, np.arange(N))
-        has2 = c == 2
-        e0 = np.where(has2, ee[np.minimum(st, len(ee) - 1)], -1)
-        e1 = np.where(has2, ee[np.minimum(st + 1, len(ee) - 1)], -1)
-        two = np.flatnonzero(has2)
-        bad[two[(e_piece[e0[two]] == e_piece[e1[two]]) | ((e_dir[e0[two]] * e_dir[e1[two]]).sum(1) > -cos_opp)]] = True
-        one = c == 1
-        e0 = np.where(one, ee[np.minimum(st, len(ee) - 1)], e0)
-        first[f] = (e0, e1)
-    bad |= n_two < 1
+    N, xn, bad, fe0, fe1 = _k_nodes(A, B, X, e_pt, e_dir, e_piece, e_fam, 2 * n_p, float(merge_px), float(lateral_px), float(cos_opp),
+                                    bool(options.t_nodes))
+    first = {f: (fe0[:, f - 1], fe1[:, f - 1]) for f in (1, 2)}
     nodes = np.flatnonzero(~bad)
     stats["nodes"] = int(len(nodes))
     if debug is not None:
@@ -577,21 +800,23 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     # within cross_tol_px of a line of the other family inside the volume; a piece that runs across a depth edge onto
     # a collinear line of another surface meets the other family's lines there anywhere (decisions 0066, 0084)
     if proposals and options.far_end_check:
-        # the end lines of every piece long enough (labelled ones too): the lines a free end may cross
+        # the end lines of every piece long enough (labelled ones too): the lines a free end may cross; fitted
+        # where read (the open pieces' are step 1's)
         long_mask = stops - starts >= options.min_samples
-        e_pt, e_dir, e_rms, e_end, ok_any = _k_end_lines(q, sid, ts, starts64, stops64, long_mask, float(trim_px))
         fr_e, fr_p = [], []
         for p_ in sorted(proposals):
             if len(proposals[p_]) != 1:
                 continue
             for e in (2 * p_, 2 * p_ + 1):
-                if e not in at_node and ok_any[e]:
+                if e not in at_node and ok[e]:
                     fr_e.append(e)
                     fr_p.append(p_)
         if fr_e:
             fr_e = np.array(fr_e, np.int64)
-            Xf, okf = _k_free_end_crossings(fr_e, e_fam.astype(np.int64), ok_any, e_piece.astype(np.int64), e_pt, e_dir, e_end, float(reach_px),
-                                            float(lateral_px), float(merge_px), float(cos_opp), float(np.sin(np.deg2rad(10.0))))
+            done = np.repeat(open_mask, 2)
+            Xf, okf = _k_far_ends(fr_e, e_fam, e_piece, q, sid, ts, starts64, stops64, long_mask, done, e_pt, e_dir, e_rms, e_end, ok,
+                                  float(trim_px), float(reach_px), float(lateral_px), float(merge_px), float(cos_opp),
+                                  float(np.sin(np.deg2rad(10.0))))
             if okf.any():
                 sel = np.flatnonzero(okf)
                 ff = e_fam[fr_e[sel]]
@@ -603,35 +828,26 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
                 for t in np.flatnonzero(bad_far).tolist():
                     proposals[fr_p[sel[t]]] = set()
                     stats["pieces_far_end"] = stats.get("pieces_far_end", 0) + 1
-    # 5. the pieces whose accepted nodes agree, without their samples within trim_px of either end
+    # 5. the pieces whose accepted nodes agree, without their samples within trim_px of either end (an end at no
+    # accepted node is free (a silhouette, a shadow, another crossing): the cut line's ridge is pulled over the
+    # smoothing kernel's reach there, `free_end_trim` smoothing scales); the labelled samples next to a node are
+    # the piece's seeds, as a found junction's would be: the stretch beyond them is then checked at its far end
+    # like any seeded piece's (decision 0084: a piece that runs across a depth edge onto a collinear line of
+    # another surface)
+    pp, kp = [], []
     for p_ in sorted(proposals):
         ks = proposals[p_]
         if len(ks) != 1:
             if len(ks) > 1:
                 stats["pieces_conflicting"] = stats.get("pieces_conflicting", 0) + 1
             continue
-        a_, b_ = starts[p_], stops[p_]
-        t = ts[a_:b_]
-        # an end at no accepted node is free (a silhouette, a shadow, another crossing): the cut line's ridge is
-        # pulled over the smoothing kernel's reach there, `free_end_trim` smoothing scales
-        t0 = options.node_end_trim * trim_px if 2 * p_ in at_node else options.free_end_trim * trim_px
-        t1 = options.node_end_trim * trim_px if 2 * p_ + 1 in at_node else options.free_end_trim * trim_px
-        inner = (t - t[0] >= t0) & (t[-1] - t >= t1)
-        kk = next(iter(ks))
-        if seed is not None:
-            # the labelled samples next to the node are the piece's seeds, as a found junction's would be: the
-            # stretch beyond them is then checked at its far end like any seeded piece's (decision 0084: a piece
-            # that runs across a depth edge onto a collinear line of another surface)
-            near = np.zeros(len(t), bool)
-            if 2 * p_ in at_node:
-                near |= (t - t[0] >= t0) & (t - t[0] <= t0 + 2.0 * trim_px)
-            if 2 * p_ + 1 in at_node:
-                near |= (t[-1] - t >= t1) & (t[-1] - t <= t1 + 2.0 * trim_px)
-            sn = sid[a_:b_][near & inner]
-            sn = sn[~np.isfinite(index[sn])]
-            seed[sn] = kk
-        ss = sid[a_:b_][inner]
-        ss = ss[~np.isfinite(index[ss])]
-        index[ss] = kk
-        stats["samples"] += len(ss)
+        pp.append(p_)
+        kp.append(next(iter(ks)))
+    if pp:
+        at_mask = np.zeros(2 * n_p, np.bool_)
+        at_mask[list(at_node)] = True
+        stats["samples"] += int(_k_label_pieces(np.array(pp, np.int64), np.array(kp, np.int64), at_mask, starts64, stops64, ts, sid, index,
+                                                seed if seed is not None else np.zeros(1, np.int64), seed is not None,
+                                                float(options.node_end_trim * trim_px), float(options.free_end_trim * trim_px),
+                                                float(trim_px)))
     return stats
