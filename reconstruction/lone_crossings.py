@@ -448,6 +448,24 @@ def _k_open_pieces(piece, sid, index, min_samples):
 
 
 @njit
+def _end_radius(q, sid, ts, a, b, e, trim_px):
+    """The largest distance from the end sample of end e (0: start, 1: stop) of the piece at positions a … b − 1 to
+    a sample within 3·trim_px of it along the piece (every sample `_fit_end` can use)."""
+    ex = q[sid[a], 0] if e == 0 else q[sid[b - 1], 0]
+    ey = q[sid[a], 1] if e == 0 else q[sid[b - 1], 1]
+    r2 = 0.0
+    for k in range(b - a):
+        pos = a + k if e == 0 else b - 1 - k
+        d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
+        if d > 3.0 * trim_px:
+            break
+        dd = (q[sid[pos], 0] - ex) ** 2 + (q[sid[pos], 1] - ey) ** 2
+        if dd > r2:
+            r2 = dd
+    return np.sqrt(r2)
+
+
+@njit
 def _k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, done, pts, dirs, rms, ends, ok, trim_px, reach_px,
                 lateral_px, merge_px, cos_opp, sin_min):
     """`_k_free_end_crossings` with the end lines of the long pieces (long_mask) fitted only where read: `done`
@@ -459,6 +477,7 @@ def _k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, done
     okf = np.zeros(m, np.bool_)
     xs = np.empty((n, 2))
     ids = np.empty(n, np.int64)
+    rad = np.full(n, -1.0)
     for u in range(m):
         a = free[u]
         fa = e_fam[a]
@@ -524,6 +543,13 @@ def _k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, done
                 continue
             if not done[g]:
                 p = e_piece[g]
+                # an end line through X (lat <= lateral_px) whose end is ahead within reach_px puts X within
+                # lateral_px + max(lateral_px, reach_px) + 2·R of the end sample, R the radius about it of the samples
+                # the fit can use (their mean is within R of it): farther ends are skipped unfitted
+                if rad[g] < 0.0:
+                    rad[g] = _end_radius(q, sid, ts, starts[p], stops[p], g - 2 * p, trim_px)
+                if np.sqrt((x - ends[g, 0]) ** 2 + (y - ends[g, 1]) ** 2) > lateral_px + max(lateral_px, reach_px) + 2.0 * rad[g] + 1e-6:
+                    continue
                 _fit_end(q, sid, ts, starts[p], stops[p], p, g - 2 * p, trim_px, ends, pts, dirs, rms, ok)
                 done[g] = True
             if not ok[g]:
