@@ -58,7 +58,7 @@ from reconstruction.acute_crossings import epipolar_dir_cam, expected_order_sign
 from reconstruction.depth_range_labels import _k_stretches_meet, index_stretch
 from reconstruction.geometry import depth_cam, epipolar_lines, triangulate_rays
 from reconstruction._jit import njit
-from reconstruction.rigmodel import RigModel
+from reconstruction.rigmodel import RigModel, _k_sheet_depth
 
 
 @dataclass(frozen=True)
@@ -602,6 +602,91 @@ def _k_label_pieces(pp, kk, at_node, starts, stops, ts, sid, index, seed, has_se
     return total
 
 
+@njit
+def _before(a, b):
+    """a sorts before b in NumPy's order of floats (NaN last)."""
+    if a != a:
+        return False
+    if b != b:
+        return True
+    return a < b
+
+
+@njit
+def _nan_max(a, b):
+    """np.maximum of two floats (NaN when either is)."""
+    if a != a or b != b:
+        return np.nan
+    return a if a >= b else b
+
+
+@njit
+def _k_check_choice(c_start, ci, cj, res, adm, g_start, g_size, qs, fs, index_min, span, z0, z1, sheet, rho, nf2, min_llr, rr2):
+    """Steps 3 (the sheet checks) and 4 (the choice) per node k, whose candidates are c_start[k] … c_start[k+1] − 1
+    (ci, cj, residual res, adm: inside the volume): in the order of res (stable, NaN last) each candidate's two
+    groups (2·k + f − 1: rows g_start … g_start + g_size of qs, fs) checked on its sheet inside the volume
+    (`RigModel.sheet_depth`'s kernel, `sheet` its table arguments; each (group, line) once) until two pass: the
+    best two admissible candidates, all the choice reads. Returns (ok, accept (K,), b1 (K,)); ok False when a
+    pixel lies outside the camera table (the caller takes the NumPy path)."""
+    K = c_start.shape[0] - 1
+    accept = np.zeros(K, np.bool_)
+    b1 = np.full(K, -1, np.int64)
+    state = np.zeros(2 * K * span, np.int8)  # per (group, line): 0 not checked, 1 inside the volume, 2 not
+    order = np.empty(c_start[K] - c_start[0], np.int64)
+    for k in range(K):
+        m = 0
+        for c in range(c_start[k], c_start[k + 1]):
+            if not adm[c]:
+                continue
+            # stable insertion by residual
+            u = m
+            while u > 0 and _before(res[c], res[order[u - 1]]):
+                order[u] = order[u - 1]
+                u -= 1
+            order[u] = c
+            m += 1
+        n_ok = 0
+        c1 = -1
+        c2 = -1
+        for r in range(m):
+            c = order[r]
+            good = True
+            for f in range(2):
+                g = 2 * k + f
+                key = g * span + ((ci[c] if f == 0 else cj[c]) - index_min)
+                if state[key] == 0:
+                    a = g_start[g]
+                    nr = g_size[g]
+                    z = np.empty(nr)
+                    idx = np.full(nr, (ci[c] if f == 0 else cj[c]), np.int64)
+                    if not _k_sheet_depth(qs[a : a + nr], fs[a : a + nr], idx, *sheet, z):
+                        return False, accept, b1
+                    st = 1
+                    for s in range(nr):
+                        if not (z[s] >= z0 and z[s] <= z1):
+                            st = 2
+                            break
+                    state[key] = st
+                if state[key] != 1:
+                    good = False
+                    break
+            if good:
+                n_ok += 1
+                if n_ok == 1:
+                    c1 = c
+                else:
+                    c2 = c
+                    break
+        if n_ok == 0:
+            continue
+        b1[k] = c1
+        s1 = res[c1] * res[c1]
+        s2 = res[c2] * res[c2] if n_ok > 1 else np.inf
+        sig2 = _nan_max(_nan_max(s1, nf2), rho[k] * rho[k])
+        accept[k] = ((s2 - s1) / sig2 >= min_llr) and (s2 >= rr2 * sig2)
+    return True, accept, b1
+
+
 def _unique(a: np.ndarray) -> np.ndarray:
     """np.unique of an integer array by a sort (NumPy 2's hash-based unique is slow on these small arrays)."""
     a = np.sort(a, kind="stable")
@@ -752,65 +837,76 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     adm = (zc >= z0) & (zc <= z1)
     ln = epipolar_lines(procam, xy_n)[cn]
     res = np.abs(ln[:, 0] * xy_p[:, 0] + ln[:, 1] * xy_p[:, 1] + ln[:, 2]) * model.fx_proj
-    # every sample of the node's pieces of family f, on sheet k, inside the volume (decision 0128's step 4): checked
-    # for each node's candidates in the order of their residual, the 4 best first, the rest only where those 4 do not
-    # hold two admissible ones (only the best two admissible candidates decide)
-    g_start = np.searchsorted(grp, np.arange(G))
-    g_size = np.searchsorted(grp, np.arange(G), side="right") - g_start
-    span = model.index_max - model.index_min + 1
-    state = np.zeros(G * span, np.int8)  # per (group, line): 0 not checked, 1 inside the volume, 2 not
-
-    def check(keys):
-        keys = _unique(keys)
-        keys = keys[state[keys] == 0]
-        if len(keys) == 0:
-            return
-        g, kk = keys // span, keys % span + model.index_min
-        sz_ = g_size[g]
-        rows_c = np.repeat(np.arange(len(keys)), sz_)
-        rows_s = g_start[g][rows_c] + (np.arange(len(rows_c)) - np.repeat(np.cumsum(sz_) - sz_, sz_))
-        zs = model.sheet_depth(q[s_all[rows_s]], f_all[rows_s], kk[rows_c])
-        bad_c = np.bincount(rows_c, ~((zs >= z0) & (zs <= z1)), len(keys)) > 0
-        state[keys] = np.where(bad_c, 2, 1)
-
-    key_i = (cn * 2 + 0) * span + (ci - model.index_min)
-    key_j = (cn * 2 + 1) * span + (cj - model.index_min)
-    o = np.lexsort((res, cn))
-    o = o[adm[o]]
-    rank = np.arange(len(o)) - np.searchsorted(cn[o], cn[o])
-    top = o[rank < 4]
-    check(np.concatenate([key_i[top], key_j[top]]))
-    n_ok = np.bincount(cn[top], (state[key_i[top]] == 1) & (state[key_j[top]] == 1), K)
-    rest = o[(rank >= 4) & (n_ok[cn[o]] < 2)]
-    check(np.concatenate([key_i[rest], key_j[rest]]))
-    adm = np.zeros(len(cn), bool)
-    cand = np.concatenate([top, rest])
-    adm[cand[(state[key_i[cand]] == 1) & (state[key_j[cand]] == 1)]] = True
-    # 4. the choice per node, as for a lone found junction
-    o = np.lexsort((res, cn))
-    o = o[adm[o]]
-    if len(o) == 0:
-        return stats
-    st1 = np.searchsorted(cn[o], np.arange(K))
-    cnt_k = np.bincount(cn[o], minlength=K)
-    have = cnt_k > 0
-    b1 = o[np.minimum(st1, len(o) - 1)]
-    b2 = o[np.minimum(st1 + 1, len(o) - 1)]
-    s1 = res[b1] ** 2
-    s2 = np.where(cnt_k > 1, res[b2] ** 2, np.inf)
     # ρ: the larger end-line RMS at the node (camera px)
     rho = np.zeros(K)
     for x in (g_e0, g_e1):
         ex = np.maximum(x, 0)
         v = np.where(x >= 0, e_rms[ex], 0.0)
         rho = np.maximum(rho, np.maximum(v[0::2], v[1::2]))
-    sig2 = np.maximum(np.maximum(s1, noise_floor_px**2), rho**2)
-    with np.errstate(invalid="ignore"):
-        accept = have & ((s2 - s1) / sig2 >= options.min_llr) & (s2 >= options.min_rms_ratio**2 * sig2)
-    if debug is not None:
-        for k in np.flatnonzero(have):
-            debug["nodes"].append(dict(xy=xn[nodes[k]], why="ok" if accept[k] else "ambiguous", ij=(int(ci[b1[k]]), int(cj[b1[k]])),
-                                       r=np.sqrt([s1[k], s2[k]]), rho=rho[k], n_cand=int(cnt_k[k])))
+    # every sample of the node's pieces of family f, on sheet k, inside the volume (decision 0128's step 4): checked
+    # for each node's candidates in the order of their residual until two pass (only the best two admissible
+    # candidates decide); then the choice (step 4). One compiled pass where `RigModel.sheet_depth` takes its kernel.
+    g_start = np.searchsorted(grp, np.arange(G))
+    g_size = np.searchsorted(grp, np.arange(G), side="right") - g_start
+    span = model.index_max - model.index_min + 1
+    compiled = False
+    if debug is None and model.cam_xy_table is not None and proj.dist.size <= 5:
+        sheet = (model.cam_xy_table, 1.0 / model.cam_table_px, model.procam.R_proj_cam, model.procam.t_proj_cam, model.index_min,
+                 model.sheet_nodes, 1 if proj.has_distortion else 0, *model._sheet_kernel_tables)
+        compiled, accept, b1 = _k_check_choice(np.r_[0, np.cumsum(tot)].astype(np.int64), ci.astype(np.int64), cj.astype(np.int64), res, adm,
+                                               g_start.astype(np.int64), g_size.astype(np.int64), np.ascontiguousarray(q[s_all]),
+                                               f_all.astype(np.int64), int(model.index_min), int(span), z0, z1, sheet, rho,
+                                               float(noise_floor_px**2), float(options.min_llr), float(options.min_rms_ratio**2))
+    if not compiled:
+        # the NumPy path (the reference the kernel is tested against): the 4 best first, the rest only where those
+        # 4 do not hold two admissible ones
+        state = np.zeros(G * span, np.int8)  # per (group, line): 0 not checked, 1 inside the volume, 2 not
+
+        def check(keys):
+            keys = _unique(keys)
+            keys = keys[state[keys] == 0]
+            if len(keys) == 0:
+                return
+            g, kk = keys // span, keys % span + model.index_min
+            sz_ = g_size[g]
+            rows_c = np.repeat(np.arange(len(keys)), sz_)
+            rows_s = g_start[g][rows_c] + (np.arange(len(rows_c)) - np.repeat(np.cumsum(sz_) - sz_, sz_))
+            zs = model.sheet_depth(q[s_all[rows_s]], f_all[rows_s], kk[rows_c])
+            bad_c = np.bincount(rows_c, ~((zs >= z0) & (zs <= z1)), len(keys)) > 0
+            state[keys] = np.where(bad_c, 2, 1)
+
+        key_i = (cn * 2 + 0) * span + (ci - model.index_min)
+        key_j = (cn * 2 + 1) * span + (cj - model.index_min)
+        o = np.lexsort((res, cn))
+        o = o[adm[o]]
+        rank = np.arange(len(o)) - np.searchsorted(cn[o], cn[o])
+        top = o[rank < 4]
+        check(np.concatenate([key_i[top], key_j[top]]))
+        n_ok = np.bincount(cn[top], (state[key_i[top]] == 1) & (state[key_j[top]] == 1), K)
+        rest = o[(rank >= 4) & (n_ok[cn[o]] < 2)]
+        check(np.concatenate([key_i[rest], key_j[rest]]))
+        adm = np.zeros(len(cn), bool)
+        cand = np.concatenate([top, rest])
+        adm[cand[(state[key_i[cand]] == 1) & (state[key_j[cand]] == 1)]] = True
+        # 4. the choice per node, as for a lone found junction
+        o = np.lexsort((res, cn))
+        o = o[adm[o]]
+        if len(o) == 0:
+            return stats
+        st1 = np.searchsorted(cn[o], np.arange(K))
+        cnt_k = np.bincount(cn[o], minlength=K)
+        have = cnt_k > 0
+        b1 = o[np.minimum(st1, len(o) - 1)]
+        b2 = o[np.minimum(st1 + 1, len(o) - 1)]
+        s1 = res[b1] ** 2
+        s2 = np.where(cnt_k > 1, res[b2] ** 2, np.inf)
+        sig2 = np.maximum(np.maximum(s1, noise_floor_px**2), rho**2)
+        with np.errstate(invalid="ignore"):
+            accept = have & ((s2 - s1) / sig2 >= options.min_llr) & (s2 >= options.min_rms_ratio**2 * sig2)
+        if debug is not None:
+            for k in np.flatnonzero(have):
+                debug["nodes"].append(dict(xy=xn[nodes[k]], why="ok" if accept[k] else "ambiguous", ij=(int(ci[b1[k]]), int(cj[b1[k]])),
+                                           r=np.sqrt([s1[k], s2[k]]), rho=rho[k], n_cand=int(cnt_k[k])))
     stats["nodes_labelled"] = int(accept.sum())
     proposals: dict = {}
     at_node: set = set()  # the ends (2·piece + side) at an accepted node
