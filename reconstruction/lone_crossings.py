@@ -58,7 +58,7 @@ from reconstruction.acute_crossings import epipolar_dir_cam, expected_order_sign
 from reconstruction.depth_range_labels import _k_stretches_meet, index_stretch
 from reconstruction.geometry import depth_cam, epipolar_lines, triangulate_rays
 from reconstruction._jit import njit
-from reconstruction.rigmodel import RigModel, _k_sheet_depth
+from reconstruction.rigmodel import RigModel, _k_cam_bilinear, _k_sheet_depth
 
 
 @dataclass(frozen=True)
@@ -687,6 +687,51 @@ def _k_check_choice(c_start, ci, cj, res, adm, g_start, g_size, qs, fs, index_mi
     return True, accept, b1
 
 
+@njit
+def _k_group_samples(g_e0, g_e1, e_piece, starts, stops, sid, q, check_samples, tab, inv_step):
+    """Step 3's samples per group g (2·node + f − 1; its pieces: the end g_e0[g]'s, then g_e1[g]'s when ≥ 0): at most
+    check_samples a piece, evenly spaced from end to end. Returns ok (False: a pixel outside the camera table; the
+    caller takes the NumPy path), their pixels qs (M, 2), normalised coordinates xy (M, 2) (`RigModel.cam_normalised`'s
+    table), family fs (M,), and each group's first row and row count."""
+    G = g_e0.shape[0]
+    g_start = np.empty(G, np.int64)
+    g_size = np.zeros(G, np.int64)
+    M = 0
+    for g in range(G):
+        for u in range(2):
+            e = g_e0[g] if u == 0 else g_e1[g]
+            if e >= 0:
+                p = e_piece[e]
+                M += min(stops[p] - starts[p], check_samples)
+    qs = np.empty((M, 2))
+    fs = np.empty(M, np.int64)
+    r = 0
+    for g in range(G):
+        g_start[g] = r
+        for u in range(2):
+            e = g_e0[g] if u == 0 else g_e1[g]
+            if e < 0:
+                continue
+            p = e_piece[e]
+            full = stops[p] - starts[p]
+            sz = min(full, check_samples)
+            step = (full - 1) / max(sz - 1, 1)
+            for k in range(sz):
+                s = sid[starts[p] + int(np.rint(k * step))]
+                qs[r, 0] = q[s, 0]
+                qs[r, 1] = q[s, 1]
+                fs[r] = g % 2 + 1
+                r += 1
+        g_size[g] = r - g_start[g]
+    xy = np.empty((M, 2))
+    inside = np.empty(M, np.bool_)
+    _k_cam_bilinear(qs, tab, inv_step, xy, inside)
+    for n in range(M):
+        if not inside[n]:
+            return False, qs, xy, fs, g_start, g_size
+    return True, qs, xy, fs, g_start, g_size
+
+
 def _unique(a: np.ndarray) -> np.ndarray:
     """np.unique of an integer array by a sort (NumPy 2's hash-based unique is slow on these small arrays)."""
     a = np.sort(a, kind="stable")
@@ -778,45 +823,66 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     for f in (1, 2):
         g_e0[f - 1 :: 2] = first[f][0][nodes]
         g_e1[f - 1 :: 2] = first[f][1][nodes]
-    has1 = g_e1 >= 0
-    gp = np.concatenate([np.arange(2 * K), np.flatnonzero(has1)])
-    pc = np.concatenate([e_piece[g_e0], e_piece[g_e1[has1]]])
-    # all samples of the nodes' pieces, one stretch computation
-    og = np.argsort(gp, kind="stable")
-    gp, pc = gp[og], pc[og]
-    # at most `check_samples` samples a piece, evenly spaced from end to end (the stretches' intersection and the
-    # volume test over fewer samples admit a superset of the lines: never fewer candidates, never the truth out)
-    full = stops[pc] - starts[pc]
-    sz = np.minimum(full, options.check_samples)
-    rk = np.arange(sz.sum()) - np.repeat(np.cumsum(sz) - sz, sz)
-    step = np.repeat((full - 1) / np.maximum(sz - 1, 1), sz)
-    pos = np.repeat(starts[pc], sz) + np.rint(rk * step).astype(np.intp)
-    grp = np.repeat(gp, sz)
-    s_all = sid[pos]
-    f_all = (grp % 2 + 1).astype(np.intp)
     G = 2 * K
     tol_g = np.tile(tol, K)
     proj = model.procam.projector
-    if proj.dist.size <= 5:
-        # decision 0128's compiled stretches, intersected per group
-        g_start = np.searchsorted(grp, np.arange(G))
-        g_stop = np.searchsorted(grp, np.arange(G), side="right")
+    # at most `check_samples` samples a piece, evenly spaced from end to end (the stretches' intersection and the
+    # volume test over fewer samples admit a superset of the lines: never fewer candidates, never the truth out)
+    compiled = False
+    if model.cam_xy_table is not None and proj.dist.size <= 5:
+        # one compiled pass for the samples, then decision 0128's compiled stretches, intersected per group
+        compiled, qs, xy_s, f_all, g_start, g_size = _k_group_samples(g_e0.astype(np.int64), g_e1.astype(np.int64), e_piece, starts64, stops64,
+                                                                     sid, q, int(options.check_samples), model.cam_xy_table,
+                                                                     1.0 / model.cam_table_px)
+    if compiled:
         pat = model.pattern
         dist = np.zeros(5)
         dist[: min(5, proj.dist.size)] = np.asarray(proj.dist, np.float64).ravel()[:5]
         lo_g, hi_g = _k_group_stretches(
-            np.ascontiguousarray(model.cam_normalised(q[s_all]), np.float64), g_start.astype(np.int64), g_stop.astype(np.int64),
+            xy_s, g_start, g_start + g_size,
             np.ascontiguousarray(model.procam.R_proj_cam, np.float64), np.ascontiguousarray(model.procam.t_proj_cam, np.float64), z0, z1,
             np.ascontiguousarray(proj.K, np.float64), dist, bool(proj.has_distortion), float(pat.centre_px[0]), float(pat.centre_px[1]),
             np.array([pat.n1, pat.n2], np.float64), np.ascontiguousarray(model.line_offsets_px, np.float64), int(model.index_min))
         miss = ~np.isfinite(lo_g) & (lo_g > 0)
     else:
-        lo, hi = index_stretch(model, q[s_all], f_all, (z0, z1))
-        miss = np.bincount(grp, ~(np.isfinite(lo) & np.isfinite(hi)), G) > 0
-        lo_g = np.full(G, -np.inf)
-        hi_g = np.full(G, np.inf)
-        np.maximum.at(lo_g, grp, np.nan_to_num(lo, nan=np.inf))
-        np.minimum.at(hi_g, grp, np.nan_to_num(hi, nan=-np.inf))
+        # the NumPy path (the reference the kernels are tested against)
+        has1 = g_e1 >= 0
+        gp = np.concatenate([np.arange(2 * K), np.flatnonzero(has1)])
+        pc = np.concatenate([e_piece[g_e0], e_piece[g_e1[has1]]])
+        # all samples of the nodes' pieces, one stretch computation
+        og = np.argsort(gp, kind="stable")
+        gp, pc = gp[og], pc[og]
+        full = stops[pc] - starts[pc]
+        sz = np.minimum(full, options.check_samples)
+        rk = np.arange(sz.sum()) - np.repeat(np.cumsum(sz) - sz, sz)
+        step = np.repeat((full - 1) / np.maximum(sz - 1, 1), sz)
+        pos = np.repeat(starts[pc], sz) + np.rint(rk * step).astype(np.intp)
+        grp = np.repeat(gp, sz)
+        s_all = sid[pos]
+        f_all = (grp % 2 + 1).astype(np.intp)
+        if proj.dist.size <= 5:
+            # decision 0128's compiled stretches, intersected per group
+            g_start = np.searchsorted(grp, np.arange(G))
+            g_stop = np.searchsorted(grp, np.arange(G), side="right")
+            pat = model.pattern
+            dist = np.zeros(5)
+            dist[: min(5, proj.dist.size)] = np.asarray(proj.dist, np.float64).ravel()[:5]
+            lo_g, hi_g = _k_group_stretches(
+                np.ascontiguousarray(model.cam_normalised(q[s_all]), np.float64), g_start.astype(np.int64), g_stop.astype(np.int64),
+                np.ascontiguousarray(model.procam.R_proj_cam, np.float64), np.ascontiguousarray(model.procam.t_proj_cam, np.float64), z0, z1,
+                np.ascontiguousarray(proj.K, np.float64), dist, bool(proj.has_distortion), float(pat.centre_px[0]), float(pat.centre_px[1]),
+                np.array([pat.n1, pat.n2], np.float64), np.ascontiguousarray(model.line_offsets_px, np.float64), int(model.index_min))
+            miss = ~np.isfinite(lo_g) & (lo_g > 0)
+        else:
+            lo, hi = index_stretch(model, q[s_all], f_all, (z0, z1))
+            miss = np.bincount(grp, ~(np.isfinite(lo) & np.isfinite(hi)), G) > 0
+            lo_g = np.full(G, -np.inf)
+            hi_g = np.full(G, np.inf)
+            np.maximum.at(lo_g, grp, np.nan_to_num(lo, nan=np.inf))
+            np.minimum.at(hi_g, grp, np.nan_to_num(hi, nan=-np.inf))
+        g_start = np.searchsorted(grp, np.arange(G))
+        g_size = np.searchsorted(grp, np.arange(G), side="right") - g_start
+        qs = q[s_all]
     k_lo = np.maximum(np.ceil(lo_g - tol_g), model.index_min).astype(np.intp)
     k_hi = np.minimum(np.floor(hi_g + tol_g), model.index_max).astype(np.intp)
     # candidates (i, j) per node: the products of the two ranges
@@ -846,15 +912,13 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     # every sample of the node's pieces of family f, on sheet k, inside the volume (decision 0128's step 4): checked
     # for each node's candidates in the order of their residual until two pass (only the best two admissible
     # candidates decide); then the choice (step 4). One compiled pass where `RigModel.sheet_depth` takes its kernel.
-    g_start = np.searchsorted(grp, np.arange(G))
-    g_size = np.searchsorted(grp, np.arange(G), side="right") - g_start
     span = model.index_max - model.index_min + 1
     compiled = False
     if debug is None and model.cam_xy_table is not None and proj.dist.size <= 5:
         sheet = (model.cam_xy_table, 1.0 / model.cam_table_px, model.procam.R_proj_cam, model.procam.t_proj_cam, model.index_min,
                  model.sheet_nodes, 1 if proj.has_distortion else 0, *model._sheet_kernel_tables)
         compiled, accept, b1 = _k_check_choice(np.r_[0, np.cumsum(tot)].astype(np.int64), ci.astype(np.int64), cj.astype(np.int64), res, adm,
-                                               g_start.astype(np.int64), g_size.astype(np.int64), np.ascontiguousarray(q[s_all]),
+                                               g_start.astype(np.int64), g_size.astype(np.int64), np.ascontiguousarray(qs),
                                                f_all.astype(np.int64), int(model.index_min), int(span), z0, z1, sheet, rho,
                                                float(noise_floor_px**2), float(options.min_llr), float(options.min_rms_ratio**2))
     if not compiled:
@@ -871,7 +935,7 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
             sz_ = g_size[g]
             rows_c = np.repeat(np.arange(len(keys)), sz_)
             rows_s = g_start[g][rows_c] + (np.arange(len(rows_c)) - np.repeat(np.cumsum(sz_) - sz_, sz_))
-            zs = model.sheet_depth(q[s_all[rows_s]], f_all[rows_s], kk[rows_c])
+            zs = model.sheet_depth(qs[rows_s], f_all[rows_s], kk[rows_c])
             bad_c = np.bincount(rows_c, ~((zs >= z0) & (zs <= z1)), len(keys)) > 0
             state[keys] = np.where(bad_c, 2, 1)
 
