@@ -52,7 +52,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from reconstruction.acute_crossings import epipolar_dir_cam, expected_order_sign, order_sign
 from reconstruction.depth_range_labels import _k_stretches_meet, index_stretch
@@ -237,87 +236,6 @@ def _k_group_stretches(xy, g_start, g_stop, R, t, z0, z1, Kp, dist, has_dist, cu
 
 
 @njit
-def _k_free_end_crossings(free, e_fam, usable, e_piece, pts, dirs, ends, reach_px, lateral_px, merge_px, cos_opp, sin_min):
-    """Step 6's crossings: for each free end e (free (m,)), the nearest point X where its end line crosses the end
-    line of a usable end of the other family, ahead of both within reach_px (from −lateral_px), at an angle of at
-    least asin(sin_min); kept (ok) when the piece's own line goes on beyond X (a usable end of its family on another
-    piece, facing back, ahead of X within reach_px, its end line within lateral_px of X) or the other family's line
-    runs through X (two of its ends crossing e's end line within merge_px of X, pointing apart within the
-    opposite cone). Returns X (m, 2) and ok (m,)."""
-    m = free.shape[0]
-    n = e_fam.shape[0]
-    X = np.full((m, 2), np.nan)
-    ok = np.zeros(m, np.bool_)
-    xs = np.empty((n, 2))
-    ids = np.empty(n, np.int64)
-    for u in range(m):
-        a = free[u]
-        fa = e_fam[a]
-        cnt = 0
-        best = -1
-        bd = np.inf
-        for b in range(n):
-            if not usable[b] or e_fam[b] == fa:
-                continue
-            dx = ends[a, 0] - ends[b, 0]
-            dy = ends[a, 1] - ends[b, 1]
-            if dx * dx + dy * dy > 4.0 * reach_px * reach_px:
-                continue
-            den = dirs[a, 0] * dirs[b, 1] - dirs[a, 1] * dirs[b, 0]
-            if abs(den) <= sin_min:
-                continue
-            wx = pts[b, 0] - pts[a, 0]
-            wy = pts[b, 1] - pts[a, 1]
-            t = (wx * dirs[b, 1] - wy * dirs[b, 0]) / den
-            x = pts[a, 0] + t * dirs[a, 0]
-            y = pts[a, 1] + t * dirs[a, 1]
-            ha = (x - ends[a, 0]) * dirs[a, 0] + (y - ends[a, 1]) * dirs[a, 1]
-            hb = (x - ends[b, 0]) * dirs[b, 0] + (y - ends[b, 1]) * dirs[b, 1]
-            if ha < -lateral_px or ha > reach_px or hb < -lateral_px or hb > reach_px:
-                continue
-            xs[cnt, 0] = x
-            xs[cnt, 1] = y
-            ids[cnt] = b
-            d = (x - ends[a, 0]) ** 2 + (y - ends[a, 1]) ** 2
-            if d < bd:
-                bd = d
-                best = cnt
-            cnt += 1
-        if best < 0:
-            continue
-        x = xs[best, 0]
-        y = xs[best, 1]
-        X[u, 0] = x
-        X[u, 1] = y
-        through = False
-        for i in range(cnt):
-            if (xs[i, 0] - x) ** 2 + (xs[i, 1] - y) ** 2 > merge_px * merge_px:
-                continue
-            for j in range(i + 1, cnt):
-                if (xs[j, 0] - x) ** 2 + (xs[j, 1] - y) ** 2 > merge_px * merge_px:
-                    continue
-                bi = ids[i]
-                bj = ids[j]
-                if dirs[bi, 0] * dirs[bj, 0] + dirs[bi, 1] * dirs[bj, 1] < -cos_opp:
-                    through = True
-        goes_on = False
-        for g in range(n):
-            if not usable[g] or e_fam[g] != fa or e_piece[g] == e_piece[a]:
-                continue
-            if dirs[g, 0] * dirs[a, 0] + dirs[g, 1] * dirs[a, 1] >= -cos_opp:
-                continue
-            ahead = (x - ends[g, 0]) * dirs[g, 0] + (y - ends[g, 1]) * dirs[g, 1]
-            if ahead < -lateral_px or ahead > reach_px:
-                continue
-            lat = abs((x - pts[g, 0]) * dirs[g, 1] - (y - pts[g, 1]) * dirs[g, 0])
-            if lat <= lateral_px:
-                goes_on = True
-                break
-        ok[u] = through or goes_on
-    return X, ok
-
-
-@njit
 def _k_nodes(A, B, X, e_pt, e_dir, e_piece, e_fam, n_e, merge_px, lateral_px, cos_opp, t_nodes):
     """Step 1's nodes from the crossings (A, B, X) of `_k_crossings`, in one pass: the estimates within merge_px
     linked (single linkage; a node is numbered by its lowest estimate), the node at their mean, and the node's
@@ -468,9 +386,12 @@ def _end_radius(q, sid, ts, a, b, e, trim_px):
 @njit
 def _k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, done, pts, dirs, rms, ends, ok, trim_px, reach_px,
                 lateral_px, merge_px, cos_opp, sin_min):
-    """`_k_free_end_crossings` with the end lines of the long pieces (long_mask) fitted only where read: `done`
-    marks the ends whose fit (pts, dirs, rms, ok; updated in place) is already there; the other family's ends only
-    within 2·reach_px, the own family's only where the other family's line does not run through X."""
+    """Step 6's crossings, as decision 0139's `_k_free_end_crossings` (kept in the tests' reference) computed them
+    over every long piece's end line: for each free end, the nearest crossing X with a usable end line of the other
+    family and whether it counts (X (m, 2), ok (m,)). Here the end lines of the long pieces (long_mask) are fitted
+    only where read: `done` marks the ends whose fit (pts, dirs, rms, ok; updated in place) is already there; the
+    other family's ends only within 2·reach_px, the own family's only where the other family's line does not run
+    through X, and not those that cannot reach X (decision 0142's bound)."""
     m = free.shape[0]
     n = e_fam.shape[0]
     X = np.full((m, 2), np.nan)
@@ -736,21 +657,6 @@ def _unique(a: np.ndarray) -> np.ndarray:
     """np.unique of an integer array by a sort (NumPy 2's hash-based unique is slow on these small arrays)."""
     a = np.sort(a, kind="stable")
     return a[np.r_[True, a[1:] != a[:-1]]] if len(a) else a
-
-
-def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Connected components (ids numbered by their lowest member) of n nodes joined by the pairs (a, b)."""
-    parent = np.arange(n)
-    for i, j in zip(a.tolist(), b.tolist()):
-        while parent[i] != i:
-            i = parent[i]
-        while parent[j] != j:
-            j = parent[j]
-        if i != j:
-            parent[max(i, j)] = min(i, j)
-    for i in range(n):
-        parent[i] = parent[parent[i]]
-    return parent
 
 
 def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, depth_range_mm, trim_px: float, reach_px: float,

@@ -177,7 +177,7 @@ def test_far_end_kernel_equals_the_full_one(step_inputs):
         e_fam = np.asarray(fam[sid[starts]], np.int64)[e_piece]
         free = np.flatnonzero(ok_all & np.repeat(open_mask, 2)).astype(np.int64)
         args = (float(kw["reach_px"]), float(kw["lateral_px"]), 3.0, float(np.cos(np.deg2rad(25.0))), float(np.sin(np.deg2rad(10.0))))
-        X0, ok0 = lc._k_free_end_crossings(free, e_fam, ok_all, e_piece, e_pt, e_dir, e_end, *args)
+        X0, ok0 = ref._k_free_end_crossings(free, e_fam, ok_all, e_piece, e_pt, e_dir, e_end, *args)
         p1, d1, r1, en1, k1 = lc._k_end_lines(q, sid, ts, starts, stops, open_mask, trim)
         X1, ok1 = lc._k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, np.repeat(open_mask, 2), p1, d1, r1, en1, k1,
                                  trim, *args)
