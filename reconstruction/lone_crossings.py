@@ -52,13 +52,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from reconstruction.acute_crossings import epipolar_dir_cam, expected_order_sign, order_sign
 from reconstruction.depth_range_labels import _k_stretches_meet, index_stretch
 from reconstruction.geometry import depth_cam, epipolar_lines, triangulate_rays
 from reconstruction._jit import njit
-from reconstruction.rigmodel import RigModel
+from reconstruction.rigmodel import RigModel, _k_cam_bilinear, _k_sheet_depth
 
 
 @dataclass(frozen=True)
@@ -86,6 +85,69 @@ class LoneCrossingOptions:
 
 
 @njit
+def _fit_end(q, sid, ts, a, b, p, e, trim_px, ends, pts, dirs, rms, ok):
+    """`_k_end_lines` for end e (0: start, 1: stop) of the piece p at positions a … b − 1 (its end samples
+    already in `ends`): the end line's point, outward direction and fit RMS, ok[2·p + e] when at least 2 samples fit."""
+    # pass 1: counts and sums of the core (trim … 3·trim from the end) and of everything within 3·trim
+    nc = 0
+    na = 0
+    for k in range(b - a):
+        pos = a + k if e == 0 else b - 1 - k
+        d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
+        if d > 3.0 * trim_px:
+            break
+        na += 1
+        if d >= trim_px:
+            nc += 1
+    use_core = nc >= 3
+    nn = nc if use_core else na
+    if nn < 2:
+        return
+    sx = 0.0
+    sy = 0.0
+    for k in range(na):
+        pos = a + k if e == 0 else b - 1 - k
+        d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
+        if use_core and d < trim_px:
+            continue
+        sx += q[sid[pos], 0]
+        sy += q[sid[pos], 1]
+    mx = sx / nn
+    my = sy / nn
+    cxx = 0.0
+    cyy = 0.0
+    cxy = 0.0
+    for k in range(na):
+        pos = a + k if e == 0 else b - 1 - k
+        d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
+        if use_core and d < trim_px:
+            continue
+        dx = q[sid[pos], 0] - mx
+        dy = q[sid[pos], 1] - my
+        cxx += dx * dx
+        cyy += dy * dy
+        cxy += dx * dy
+    cxx /= nn
+    cyy /= nn
+    cxy /= nn
+    ang = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
+    ux = np.cos(ang)
+    uy = np.sin(ang)
+    lam = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
+    i = 2 * p + e
+    o = 2 * p + 1 - e
+    if (ends[i, 0] - ends[o, 0]) * ux + (ends[i, 1] - ends[o, 1]) * uy < 0:
+        ux = -ux
+        uy = -uy
+    pts[i, 0] = mx
+    pts[i, 1] = my
+    dirs[i, 0] = ux
+    dirs[i, 1] = uy
+    rms[i] = np.sqrt(max(lam, 0.0))
+    ok[i] = True
+
+
+@njit
 def _k_end_lines(q, sid, ts, starts, stops, open_mask, trim_px):
     """Step 1's end lines: per piece and end (e = 2·piece + side) the end line's point, outward direction, fit RMS,
     end sample and whether it is usable (an open piece with at least 2 samples in the fit)."""
@@ -105,63 +167,7 @@ def _k_end_lines(q, sid, ts, starts, stops, open_mask, trim_px):
         if not open_mask[p]:
             continue
         for e in range(2):
-            # pass 1: counts and sums of the core (trim … 3·trim from the end) and of everything within 3·trim
-            nc = 0
-            na = 0
-            for k in range(b - a):
-                pos = a + k if e == 0 else b - 1 - k
-                d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
-                if d > 3.0 * trim_px:
-                    break
-                na += 1
-                if d >= trim_px:
-                    nc += 1
-            use_core = nc >= 3
-            nn = nc if use_core else na
-            if nn < 2:
-                continue
-            sx = 0.0
-            sy = 0.0
-            for k in range(na):
-                pos = a + k if e == 0 else b - 1 - k
-                d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
-                if use_core and d < trim_px:
-                    continue
-                sx += q[sid[pos], 0]
-                sy += q[sid[pos], 1]
-            mx = sx / nn
-            my = sy / nn
-            cxx = 0.0
-            cyy = 0.0
-            cxy = 0.0
-            for k in range(na):
-                pos = a + k if e == 0 else b - 1 - k
-                d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
-                if use_core and d < trim_px:
-                    continue
-                dx = q[sid[pos], 0] - mx
-                dy = q[sid[pos], 1] - my
-                cxx += dx * dx
-                cyy += dy * dy
-                cxy += dx * dy
-            cxx /= nn
-            cyy /= nn
-            cxy /= nn
-            ang = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
-            ux = np.cos(ang)
-            uy = np.sin(ang)
-            lam = 0.5 * (cxx + cyy) - np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
-            i = 2 * p + e
-            o = 2 * p + 1 - e
-            if (ends[i, 0] - ends[o, 0]) * ux + (ends[i, 1] - ends[o, 1]) * uy < 0:
-                ux = -ux
-                uy = -uy
-            pts[i, 0] = mx
-            pts[i, 1] = my
-            dirs[i, 0] = ux
-            dirs[i, 1] = uy
-            rms[i] = np.sqrt(max(lam, 0.0))
-            ok[i] = True
+            _fit_end(q, sid, ts, a, b, p, e, trim_px, ends, pts, dirs, rms, ok)
     return pts, dirs, rms, ends, ok
 
 
@@ -230,19 +236,169 @@ def _k_group_stretches(xy, g_start, g_stop, R, t, z0, z1, Kp, dist, has_dist, cu
 
 
 @njit
-def _k_free_end_crossings(free, e_fam, usable, e_piece, pts, dirs, ends, reach_px, lateral_px, merge_px, cos_opp, sin_min):
-    """Step 6's crossings: for each free end e (free (m,)), the nearest point X where its end line crosses the end
-    line of a usable end of the other family, ahead of both within reach_px (from −lateral_px), at an angle of at
-    least asin(sin_min); kept (ok) when the piece's own line goes on beyond X (a usable end of its family on another
-    piece, facing back, ahead of X within reach_px, its end line within lateral_px of X) or the other family's line
-    runs through X (two of its ends crossing e's end line within merge_px of X, pointing apart within the
-    opposite cone). Returns X (m, 2) and ok (m,)."""
+def _k_nodes(A, B, X, e_pt, e_dir, e_piece, e_fam, n_e, merge_px, lateral_px, cos_opp, t_nodes):
+    """Step 1's nodes from the crossings (A, B, X) of `_k_crossings`, in one pass: the estimates within merge_px
+    linked (single linkage; a node is numbered by its lowest estimate), the node at their mean, and the node's
+    ends of each family. Returns the node count N, xn (N, 2), bad (N,) (an end at two nodes, an end line beyond
+    lateral_px, a family with no end or more than two, two ends of one piece or not on opposite sides, no family
+    with two ends; without t_nodes also a family with one end), and per node and family (column f − 1) its first
+    and second end (e0, e1; −1: none)."""
+    m = X.shape[0]
+    r2 = merge_px * merge_px
+    parent = np.arange(m)
+    for i in range(m):
+        for j in range(i + 1, m):
+            dx = X[i, 0] - X[j, 0]
+            dy = X[i, 1] - X[j, 1]
+            if dx * dx + dy * dy <= r2:
+                a = i
+                while parent[a] != a:
+                    a = parent[a]
+                b = j
+                while parent[b] != b:
+                    b = parent[b]
+                if a != b:
+                    parent[max(a, b)] = min(a, b)
+    for i in range(m):
+        parent[i] = parent[parent[i]]
+    node_id = np.full(m, -1, np.int64)
+    N = 0
+    for i in range(m):
+        if parent[i] == i:
+            node_id[i] = N
+            N += 1
+    node_of = np.empty(m, np.int64)
+    for i in range(m):
+        node_of[i] = node_id[parent[i]]
+    xn = np.zeros((N, 2))
+    cnt = np.zeros(N)
+    for i in range(m):
+        xn[node_of[i], 0] += X[i, 0]
+        xn[node_of[i], 1] += X[i, 1]
+        cnt[node_of[i]] += 1.0
+    for k in range(N):
+        xn[k, 0] = xn[k, 0] / cnt[k]
+        xn[k, 1] = xn[k, 1] / cnt[k]
+    # the node's ends, each once, sorted by node and end
+    keys = np.empty(2 * m, np.int64)
+    for i in range(m):
+        keys[i] = node_of[i] * n_e + A[i]
+        keys[m + i] = node_of[i] * n_e + B[i]
+    keys = np.sort(keys)
+    nu = 0
+    for i in range(2 * m):
+        if i == 0 or keys[i] != keys[i - 1]:
+            keys[nu] = keys[i]
+            nu += 1
+    bad = np.zeros(N, np.bool_)
+    per_end = np.zeros(n_e, np.int64)
+    for u in range(nu):
+        per_end[keys[u] % n_e] += 1
+    c = np.zeros((N, 2), np.int64)
+    e0 = np.full((N, 2), -1, np.int64)
+    e1 = np.full((N, 2), -1, np.int64)
+    for u in range(nu):
+        k = keys[u] // n_e
+        e = keys[u] % n_e
+        if per_end[e] > 1:
+            bad[k] = True
+        rx = xn[k, 0] - e_pt[e, 0]
+        ry = xn[k, 1] - e_pt[e, 1]
+        if abs(rx * e_dir[e, 1] - ry * e_dir[e, 0]) > lateral_px:
+            bad[k] = True
+        f = e_fam[e] - 1
+        if c[k, f] == 0:
+            e0[k, f] = e
+        elif c[k, f] == 1:
+            e1[k, f] = e
+        c[k, f] += 1
+    for k in range(N):
+        n_two = 0
+        for f in range(2):
+            ck = c[k, f]
+            if ck == 0 or ck > 2 or (ck == 1 and not t_nodes):
+                bad[k] = True
+            if ck == 2:
+                n_two += 1
+                a = e0[k, f]
+                b = e1[k, f]
+                if e_piece[a] == e_piece[b] or e_dir[a, 0] * e_dir[b, 0] + e_dir[a, 1] * e_dir[b, 1] > -cos_opp:
+                    bad[k] = True
+            else:
+                e1[k, f] = -1
+                if ck != 1:
+                    e0[k, f] = -1
+        if n_two < 1:
+            bad[k] = True
+    return N, xn, bad, e0, e1
+
+
+@njit
+def _k_open_pieces(piece, sid, index, min_samples):
+    """The pieces of the traces (piece (n,) non-decreasing, numbered 0 … n_p − 1): their first and past-the-end
+    positions, and the open ones (no sample labelled, at least min_samples samples)."""
+    n = piece.shape[0]
+    n_p = 1
+    for s in range(1, n):
+        if piece[s] != piece[s - 1]:
+            n_p += 1
+    starts = np.empty(n_p, np.int64)
+    stops = np.empty(n_p, np.int64)
+    open_mask = np.zeros(n_p, np.bool_)
+    p = 0
+    starts[0] = 0
+    for s in range(1, n + 1):
+        if s == n or piece[s] != piece[s - 1]:
+            stops[p] = s
+            p += 1
+            if s < n:
+                starts[p] = s
+    for p in range(n_p):
+        if stops[p] - starts[p] < min_samples:
+            continue
+        lab = False
+        for s in range(starts[p], stops[p]):
+            if np.isfinite(index[sid[s]]):
+                lab = True
+                break
+        open_mask[p] = not lab
+    return starts, stops, open_mask
+
+
+@njit
+def _end_radius(q, sid, ts, a, b, e, trim_px):
+    """The largest distance from the end sample of end e (0: start, 1: stop) of the piece at positions a … b − 1 to
+    a sample within 3·trim_px of it along the piece (every sample `_fit_end` can use)."""
+    ex = q[sid[a], 0] if e == 0 else q[sid[b - 1], 0]
+    ey = q[sid[a], 1] if e == 0 else q[sid[b - 1], 1]
+    r2 = 0.0
+    for k in range(b - a):
+        pos = a + k if e == 0 else b - 1 - k
+        d = ts[pos] - ts[a] if e == 0 else ts[b - 1] - ts[pos]
+        if d > 3.0 * trim_px:
+            break
+        dd = (q[sid[pos], 0] - ex) ** 2 + (q[sid[pos], 1] - ey) ** 2
+        if dd > r2:
+            r2 = dd
+    return np.sqrt(r2)
+
+
+@njit
+def _k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, done, pts, dirs, rms, ends, ok, trim_px, reach_px,
+                lateral_px, merge_px, cos_opp, sin_min):
+    """Step 6's crossings, as decision 0139's `_k_free_end_crossings` (kept in the tests' reference) computed them
+    over every long piece's end line: for each free end, the nearest crossing X with a usable end line of the other
+    family and whether it counts (X (m, 2), ok (m,)). Here the end lines of the long pieces (long_mask) are fitted
+    only where read: `done` marks the ends whose fit (pts, dirs, rms, ok; updated in place) is already there; the
+    other family's ends only within 2·reach_px, the own family's only where the other family's line does not run
+    through X, and not those that cannot reach X (decision 0142's bound)."""
     m = free.shape[0]
     n = e_fam.shape[0]
     X = np.full((m, 2), np.nan)
-    ok = np.zeros(m, np.bool_)
+    okf = np.zeros(m, np.bool_)
     xs = np.empty((n, 2))
     ids = np.empty(n, np.int64)
+    rad = np.full(n, -1.0)
     for u in range(m):
         a = free[u]
         fa = e_fam[a]
@@ -250,11 +406,17 @@ def _k_free_end_crossings(free, e_fam, usable, e_piece, pts, dirs, ends, reach_p
         best = -1
         bd = np.inf
         for b in range(n):
-            if not usable[b] or e_fam[b] == fa:
+            if e_fam[b] == fa or not long_mask[e_piece[b]]:
                 continue
             dx = ends[a, 0] - ends[b, 0]
             dy = ends[a, 1] - ends[b, 1]
             if dx * dx + dy * dy > 4.0 * reach_px * reach_px:
+                continue
+            if not done[b]:
+                p = e_piece[b]
+                _fit_end(q, sid, ts, starts[p], stops[p], p, b - 2 * p, trim_px, ends, pts, dirs, rms, ok)
+                done[b] = True
+            if not ok[b]:
                 continue
             den = dirs[a, 0] * dirs[b, 1] - dirs[a, 1] * dirs[b, 0]
             if abs(den) <= sin_min:
@@ -293,9 +455,25 @@ def _k_free_end_crossings(free, e_fam, usable, e_piece, pts, dirs, ends, reach_p
                 bj = ids[j]
                 if dirs[bi, 0] * dirs[bj, 0] + dirs[bi, 1] * dirs[bj, 1] < -cos_opp:
                     through = True
+        if through:
+            okf[u] = True
+            continue
         goes_on = False
         for g in range(n):
-            if not usable[g] or e_fam[g] != fa or e_piece[g] == e_piece[a]:
+            if e_fam[g] != fa or e_piece[g] == e_piece[a] or not long_mask[e_piece[g]]:
+                continue
+            if not done[g]:
+                p = e_piece[g]
+                # an end line through X (lat <= lateral_px) whose end is ahead within reach_px puts X within
+                # lateral_px + max(lateral_px, reach_px) + 2·R of the end sample, R the radius about it of the samples
+                # the fit can use (their mean is within R of it): farther ends are skipped unfitted
+                if rad[g] < 0.0:
+                    rad[g] = _end_radius(q, sid, ts, starts[p], stops[p], g - 2 * p, trim_px)
+                if np.sqrt((x - ends[g, 0]) ** 2 + (y - ends[g, 1]) ** 2) > lateral_px + max(lateral_px, reach_px) + 2.0 * rad[g] + 1e-6:
+                    continue
+                _fit_end(q, sid, ts, starts[p], stops[p], p, g - 2 * p, trim_px, ends, pts, dirs, rms, ok)
+                done[g] = True
+            if not ok[g]:
                 continue
             if dirs[g, 0] * dirs[a, 0] + dirs[g, 1] * dirs[a, 1] >= -cos_opp:
                 continue
@@ -306,29 +484,179 @@ def _k_free_end_crossings(free, e_fam, usable, e_piece, pts, dirs, ends, reach_p
             if lat <= lateral_px:
                 goes_on = True
                 break
-        ok[u] = through or goes_on
-    return X, ok
+        okf[u] = goes_on
+    return X, okf
+
+
+@njit
+def _k_label_pieces(pp, kk, at_node, starts, stops, ts, sid, index, seed, has_seed, t_node, t_free, trim_px):
+    """Step 5 for the pieces pp (ascending) with their one index kk: every sample farther than t_node (an end at
+    an accepted node, at_node[2·piece + side]) or t_free (a free end) from the piece's ends and not labelled takes
+    kk in index; with has_seed, those within 2·trim_px past the trim of an end at a node take it in seed first.
+    Returns the count of samples labelled."""
+    total = 0
+    for u in range(pp.shape[0]):
+        p = pp[u]
+        a = starts[p]
+        b = stops[p]
+        k = kk[u]
+        n0 = at_node[2 * p]
+        n1 = at_node[2 * p + 1]
+        t0 = t_node if n0 else t_free
+        t1 = t_node if n1 else t_free
+        ta = ts[a]
+        tb = ts[b - 1]
+        if has_seed:
+            for s in range(a, b):
+                inner = (ts[s] - ta >= t0) and (tb - ts[s] >= t1)
+                near = False
+                if n0 and ts[s] - ta >= t0 and ts[s] - ta <= t0 + 2.0 * trim_px:
+                    near = True
+                if n1 and tb - ts[s] >= t1 and tb - ts[s] <= t1 + 2.0 * trim_px:
+                    near = True
+                if near and inner and not np.isfinite(index[sid[s]]):
+                    seed[sid[s]] = k
+        for s in range(a, b):
+            if (ts[s] - ta >= t0) and (tb - ts[s] >= t1) and not np.isfinite(index[sid[s]]):
+                index[sid[s]] = k
+                total += 1
+    return total
+
+
+@njit
+def _before(a, b):
+    """a sorts before b in NumPy's order of floats (NaN last)."""
+    if a != a:
+        return False
+    if b != b:
+        return True
+    return a < b
+
+
+@njit
+def _nan_max(a, b):
+    """np.maximum of two floats (NaN when either is)."""
+    if a != a or b != b:
+        return np.nan
+    return a if a >= b else b
+
+
+@njit
+def _k_check_choice(c_start, ci, cj, res, adm, g_start, g_size, qs, fs, index_min, span, z0, z1, sheet, rho, nf2, min_llr, rr2):
+    """Steps 3 (the sheet checks) and 4 (the choice) per node k, whose candidates are c_start[k] … c_start[k+1] − 1
+    (ci, cj, residual res, adm: inside the volume): in the order of res (stable, NaN last) each candidate's two
+    groups (2·k + f − 1: rows g_start … g_start + g_size of qs, fs) checked on its sheet inside the volume
+    (`RigModel.sheet_depth`'s kernel, `sheet` its table arguments; each (group, line) once) until two pass: the
+    best two admissible candidates, all the choice reads. Returns (ok, accept (K,), b1 (K,)); ok False when a
+    pixel lies outside the camera table (the caller takes the NumPy path)."""
+    K = c_start.shape[0] - 1
+    accept = np.zeros(K, np.bool_)
+    b1 = np.full(K, -1, np.int64)
+    state = np.zeros(2 * K * span, np.int8)  # per (group, line): 0 not checked, 1 inside the volume, 2 not
+    order = np.empty(c_start[K] - c_start[0], np.int64)
+    for k in range(K):
+        m = 0
+        for c in range(c_start[k], c_start[k + 1]):
+            if not adm[c]:
+                continue
+            # stable insertion by residual
+            u = m
+            while u > 0 and _before(res[c], res[order[u - 1]]):
+                order[u] = order[u - 1]
+                u -= 1
+            order[u] = c
+            m += 1
+        n_ok = 0
+        c1 = -1
+        c2 = -1
+        for r in range(m):
+            c = order[r]
+            good = True
+            for f in range(2):
+                g = 2 * k + f
+                key = g * span + ((ci[c] if f == 0 else cj[c]) - index_min)
+                if state[key] == 0:
+                    a = g_start[g]
+                    nr = g_size[g]
+                    z = np.empty(nr)
+                    idx = np.full(nr, (ci[c] if f == 0 else cj[c]), np.int64)
+                    if not _k_sheet_depth(qs[a : a + nr], fs[a : a + nr], idx, *sheet, z):
+                        return False, accept, b1
+                    st = 1
+                    for s in range(nr):
+                        if not (z[s] >= z0 and z[s] <= z1):
+                            st = 2
+                            break
+                    state[key] = st
+                if state[key] != 1:
+                    good = False
+                    break
+            if good:
+                n_ok += 1
+                if n_ok == 1:
+                    c1 = c
+                else:
+                    c2 = c
+                    break
+        if n_ok == 0:
+            continue
+        b1[k] = c1
+        s1 = res[c1] * res[c1]
+        s2 = res[c2] * res[c2] if n_ok > 1 else np.inf
+        sig2 = _nan_max(_nan_max(s1, nf2), rho[k] * rho[k])
+        accept[k] = ((s2 - s1) / sig2 >= min_llr) and (s2 >= rr2 * sig2)
+    return True, accept, b1
+
+
+@njit
+def _k_group_samples(g_e0, g_e1, e_piece, starts, stops, sid, q, check_samples, tab, inv_step):
+    """Step 3's samples per group g (2·node + f − 1; its pieces: the end g_e0[g]'s, then g_e1[g]'s when ≥ 0): at most
+    check_samples a piece, evenly spaced from end to end. Returns ok (False: a pixel outside the camera table; the
+    caller takes the NumPy path), their pixels qs (M, 2), normalised coordinates xy (M, 2) (`RigModel.cam_normalised`'s
+    table), family fs (M,), and each group's first row and row count."""
+    G = g_e0.shape[0]
+    g_start = np.empty(G, np.int64)
+    g_size = np.zeros(G, np.int64)
+    M = 0
+    for g in range(G):
+        for u in range(2):
+            e = g_e0[g] if u == 0 else g_e1[g]
+            if e >= 0:
+                p = e_piece[e]
+                M += min(stops[p] - starts[p], check_samples)
+    qs = np.empty((M, 2))
+    fs = np.empty(M, np.int64)
+    r = 0
+    for g in range(G):
+        g_start[g] = r
+        for u in range(2):
+            e = g_e0[g] if u == 0 else g_e1[g]
+            if e < 0:
+                continue
+            p = e_piece[e]
+            full = stops[p] - starts[p]
+            sz = min(full, check_samples)
+            step = (full - 1) / max(sz - 1, 1)
+            for k in range(sz):
+                s = sid[starts[p] + int(np.rint(k * step))]
+                qs[r, 0] = q[s, 0]
+                qs[r, 1] = q[s, 1]
+                fs[r] = g % 2 + 1
+                r += 1
+        g_size[g] = r - g_start[g]
+    xy = np.empty((M, 2))
+    inside = np.empty(M, np.bool_)
+    _k_cam_bilinear(qs, tab, inv_step, xy, inside)
+    for n in range(M):
+        if not inside[n]:
+            return False, qs, xy, fs, g_start, g_size
+    return True, qs, xy, fs, g_start, g_size
 
 
 def _unique(a: np.ndarray) -> np.ndarray:
     """np.unique of an integer array by a sort (NumPy 2's hash-based unique is slow on these small arrays)."""
     a = np.sort(a, kind="stable")
     return a[np.r_[True, a[1:] != a[:-1]]] if len(a) else a
-
-
-def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Connected components (ids numbered by their lowest member) of n nodes joined by the pairs (a, b)."""
-    parent = np.arange(n)
-    for i, j in zip(a.tolist(), b.tolist()):
-        while parent[i] != i:
-            i = parent[i]
-        while parent[j] != j:
-            j = parent[j]
-        if i != j:
-            parent[max(i, j)] = min(i, j)
-    for i in range(n):
-        parent[i] = parent[parent[i]]
-    return parent
 
 
 def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, depth_range_mm, trim_px: float, reach_px: float,
@@ -349,19 +677,15 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     piece = np.asarray(piece, np.intp)
     sid = np.asarray(sid, np.intp)
     ts = np.asarray(ts, np.float64)
-    starts = np.flatnonzero(np.r_[True, piece[1:] != piece[:-1]])
-    stops = np.r_[starts[1:], n]
+    starts, stops, open_mask = _k_open_pieces(piece, sid, index, int(options.min_samples))
     n_p = len(starts)
-    lab = np.isfinite(index[sid])
-    n_lab = np.bincount(piece, lab, n_p)
-    open_mask = (n_lab == 0) & (stops - starts >= options.min_samples)
     if open_mask.sum() < 3:
         return stats
-    starts64, stops64 = starts.astype(np.int64), stops.astype(np.int64)
+    starts64, stops64 = starts, stops
     e_pt, e_dir, e_rms, e_end, ok = _k_end_lines(q, sid, ts, starts64, stops64, open_mask, float(trim_px))
     e_all = np.flatnonzero(ok)
-    e_piece = np.arange(2 * n_p) // 2
-    e_fam = np.asarray(fam[sid[starts]])[e_piece]
+    e_piece = np.arange(2 * n_p, dtype=np.int64) // 2
+    e_fam = np.asarray(fam[sid[starts]], np.int64)[e_piece]
     if debug is not None:
         debug.update(e_end=e_end[e_all], e_fam=e_fam[e_all], e_dir=e_dir[e_all], e_piece=e_piece[e_all], e_pt=e_pt[e_all])
     # 1. pairs of ends of the two families near each other, and where their end lines cross
@@ -369,51 +693,12 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
                            float(np.sin(np.deg2rad(10.0))))
     if len(A) == 0:
         return stats
-    # nodes: single linkage of the estimates within merge_px
-    m = len(X)
+    # nodes: single linkage of the estimates within merge_px, their ends, the shape tests (one compiled pass)
     merge_px = options.merge_share * model.junction_step_cam_px
-    cp = cKDTree(X).query_pairs(merge_px, output_type="ndarray")
-    comp = _components(m, cp[:, 0], cp[:, 1]) if len(cp) else np.arange(m)
-    is_root = np.zeros(m, bool)
-    is_root[comp] = True
-    N = int(is_root.sum())
-    node_of = (np.cumsum(is_root) - 1)[comp]
-    cnt = np.bincount(node_of, minlength=N).astype(np.float64)
-    xn = np.stack([np.bincount(node_of, X[:, 0], N), np.bincount(node_of, X[:, 1], N)], axis=1) / cnt[:, None]
-    # the node's ends (each end once per node)
-    ent = _unique(np.concatenate([node_of * (2 * n_p) + A, node_of * (2 * n_p) + B]))
-    en_node, en_end = ent // (2 * n_p), ent % (2 * n_p)
-    en_fam = e_fam[en_end]
-    bad = np.zeros(N, bool)
-    # an end at two nodes: neither
-    per_end = np.bincount(en_end, minlength=2 * n_p)
-    bad[en_node[per_end[en_end] > 1]] = True
-    # every end line passes within lateral_px of the node
-    r = xn[en_node] - e_pt[en_end]
-    lat = np.abs(r[:, 0] * e_dir[en_end, 1] - r[:, 1] * e_dir[en_end, 0])
-    bad[en_node[lat > lateral_px]] = True
-    # per family: one or two ends; two: of two pieces, on opposite sides
     cos_opp = np.cos(np.deg2rad(options.opposite_deg))
-    n_two = np.zeros(N, np.intp)
-    first = {}
-    for f in (1, 2):
-        sel = en_fam == f
-        c = np.bincount(en_node[sel], minlength=N)
-        bad |= (c == 0) | (c > 2)
-        if not options.t_nodes:
-            bad |= c == 1
-        n_two += c == 2
-        nd, ee = en_node[sel], en_end[sel]  # sorted by node (ent is sorted)
-        st = np.searchsorted(nd, np.arange(N))
-        has2 = c == 2
-        e0 = np.where(has2, ee[np.minimum(st, len(ee) - 1)], -1)
-        e1 = np.where(has2, ee[np.minimum(st + 1, len(ee) - 1)], -1)
-        two = np.flatnonzero(has2)
-        bad[two[(e_piece[e0[two]] == e_piece[e1[two]]) | ((e_dir[e0[two]] * e_dir[e1[two]]).sum(1) > -cos_opp)]] = True
-        one = c == 1
-        e0 = np.where(one, ee[np.minimum(st, len(ee) - 1)], e0)
-        first[f] = (e0, e1)
-    bad |= n_two < 1
+    N, xn, bad, fe0, fe1 = _k_nodes(A, B, X, e_pt, e_dir, e_piece, e_fam, 2 * n_p, float(merge_px), float(lateral_px), float(cos_opp),
+                                    bool(options.t_nodes))
+    first = {f: (fe0[:, f - 1], fe1[:, f - 1]) for f in (1, 2)}
     nodes = np.flatnonzero(~bad)
     stats["nodes"] = int(len(nodes))
     if debug is not None:
@@ -444,45 +729,66 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     for f in (1, 2):
         g_e0[f - 1 :: 2] = first[f][0][nodes]
         g_e1[f - 1 :: 2] = first[f][1][nodes]
-    has1 = g_e1 >= 0
-    gp = np.concatenate([np.arange(2 * K), np.flatnonzero(has1)])
-    pc = np.concatenate([e_piece[g_e0], e_piece[g_e1[has1]]])
-    # all samples of the nodes' pieces, one stretch computation
-    og = np.argsort(gp, kind="stable")
-    gp, pc = gp[og], pc[og]
-    # at most `check_samples` samples a piece, evenly spaced from end to end (the stretches' intersection and the
-    # volume test over fewer samples admit a superset of the lines: never fewer candidates, never the truth out)
-    full = stops[pc] - starts[pc]
-    sz = np.minimum(full, options.check_samples)
-    rk = np.arange(sz.sum()) - np.repeat(np.cumsum(sz) - sz, sz)
-    step = np.repeat((full - 1) / np.maximum(sz - 1, 1), sz)
-    pos = np.repeat(starts[pc], sz) + np.rint(rk * step).astype(np.intp)
-    grp = np.repeat(gp, sz)
-    s_all = sid[pos]
-    f_all = (grp % 2 + 1).astype(np.intp)
     G = 2 * K
     tol_g = np.tile(tol, K)
     proj = model.procam.projector
-    if proj.dist.size <= 5:
-        # decision 0128's compiled stretches, intersected per group
-        g_start = np.searchsorted(grp, np.arange(G))
-        g_stop = np.searchsorted(grp, np.arange(G), side="right")
+    # at most `check_samples` samples a piece, evenly spaced from end to end (the stretches' intersection and the
+    # volume test over fewer samples admit a superset of the lines: never fewer candidates, never the truth out)
+    compiled = False
+    if model.cam_xy_table is not None and proj.dist.size <= 5:
+        # one compiled pass for the samples, then decision 0128's compiled stretches, intersected per group
+        compiled, qs, xy_s, f_all, g_start, g_size = _k_group_samples(g_e0.astype(np.int64), g_e1.astype(np.int64), e_piece, starts64, stops64,
+                                                                     sid, q, int(options.check_samples), model.cam_xy_table,
+                                                                     1.0 / model.cam_table_px)
+    if compiled:
         pat = model.pattern
         dist = np.zeros(5)
         dist[: min(5, proj.dist.size)] = np.asarray(proj.dist, np.float64).ravel()[:5]
         lo_g, hi_g = _k_group_stretches(
-            np.ascontiguousarray(model.cam_normalised(q[s_all]), np.float64), g_start.astype(np.int64), g_stop.astype(np.int64),
+            xy_s, g_start, g_start + g_size,
             np.ascontiguousarray(model.procam.R_proj_cam, np.float64), np.ascontiguousarray(model.procam.t_proj_cam, np.float64), z0, z1,
             np.ascontiguousarray(proj.K, np.float64), dist, bool(proj.has_distortion), float(pat.centre_px[0]), float(pat.centre_px[1]),
             np.array([pat.n1, pat.n2], np.float64), np.ascontiguousarray(model.line_offsets_px, np.float64), int(model.index_min))
         miss = ~np.isfinite(lo_g) & (lo_g > 0)
     else:
-        lo, hi = index_stretch(model, q[s_all], f_all, (z0, z1))
-        miss = np.bincount(grp, ~(np.isfinite(lo) & np.isfinite(hi)), G) > 0
-        lo_g = np.full(G, -np.inf)
-        hi_g = np.full(G, np.inf)
-        np.maximum.at(lo_g, grp, np.nan_to_num(lo, nan=np.inf))
-        np.minimum.at(hi_g, grp, np.nan_to_num(hi, nan=-np.inf))
+        # the NumPy path (the reference the kernels are tested against)
+        has1 = g_e1 >= 0
+        gp = np.concatenate([np.arange(2 * K), np.flatnonzero(has1)])
+        pc = np.concatenate([e_piece[g_e0], e_piece[g_e1[has1]]])
+        # all samples of the nodes' pieces, one stretch computation
+        og = np.argsort(gp, kind="stable")
+        gp, pc = gp[og], pc[og]
+        full = stops[pc] - starts[pc]
+        sz = np.minimum(full, options.check_samples)
+        rk = np.arange(sz.sum()) - np.repeat(np.cumsum(sz) - sz, sz)
+        step = np.repeat((full - 1) / np.maximum(sz - 1, 1), sz)
+        pos = np.repeat(starts[pc], sz) + np.rint(rk * step).astype(np.intp)
+        grp = np.repeat(gp, sz)
+        s_all = sid[pos]
+        f_all = (grp % 2 + 1).astype(np.intp)
+        if proj.dist.size <= 5:
+            # decision 0128's compiled stretches, intersected per group
+            g_start = np.searchsorted(grp, np.arange(G))
+            g_stop = np.searchsorted(grp, np.arange(G), side="right")
+            pat = model.pattern
+            dist = np.zeros(5)
+            dist[: min(5, proj.dist.size)] = np.asarray(proj.dist, np.float64).ravel()[:5]
+            lo_g, hi_g = _k_group_stretches(
+                np.ascontiguousarray(model.cam_normalised(q[s_all]), np.float64), g_start.astype(np.int64), g_stop.astype(np.int64),
+                np.ascontiguousarray(model.procam.R_proj_cam, np.float64), np.ascontiguousarray(model.procam.t_proj_cam, np.float64), z0, z1,
+                np.ascontiguousarray(proj.K, np.float64), dist, bool(proj.has_distortion), float(pat.centre_px[0]), float(pat.centre_px[1]),
+                np.array([pat.n1, pat.n2], np.float64), np.ascontiguousarray(model.line_offsets_px, np.float64), int(model.index_min))
+            miss = ~np.isfinite(lo_g) & (lo_g > 0)
+        else:
+            lo, hi = index_stretch(model, q[s_all], f_all, (z0, z1))
+            miss = np.bincount(grp, ~(np.isfinite(lo) & np.isfinite(hi)), G) > 0
+            lo_g = np.full(G, -np.inf)
+            hi_g = np.full(G, np.inf)
+            np.maximum.at(lo_g, grp, np.nan_to_num(lo, nan=np.inf))
+            np.minimum.at(hi_g, grp, np.nan_to_num(hi, nan=-np.inf))
+        g_start = np.searchsorted(grp, np.arange(G))
+        g_size = np.searchsorted(grp, np.arange(G), side="right") - g_start
+        qs = q[s_all]
     k_lo = np.maximum(np.ceil(lo_g - tol_g), model.index_min).astype(np.intp)
     k_hi = np.minimum(np.floor(hi_g + tol_g), model.index_max).astype(np.intp)
     # candidates (i, j) per node: the products of the two ranges
@@ -503,65 +809,74 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     adm = (zc >= z0) & (zc <= z1)
     ln = epipolar_lines(procam, xy_n)[cn]
     res = np.abs(ln[:, 0] * xy_p[:, 0] + ln[:, 1] * xy_p[:, 1] + ln[:, 2]) * model.fx_proj
-    # every sample of the node's pieces of family f, on sheet k, inside the volume (decision 0128's step 4): checked
-    # for each node's candidates in the order of their residual, the 4 best first, the rest only where those 4 do not
-    # hold two admissible ones (only the best two admissible candidates decide)
-    g_start = np.searchsorted(grp, np.arange(G))
-    g_size = np.searchsorted(grp, np.arange(G), side="right") - g_start
-    span = model.index_max - model.index_min + 1
-    state = np.zeros(G * span, np.int8)  # per (group, line): 0 not checked, 1 inside the volume, 2 not
-
-    def check(keys):
-        keys = _unique(keys)
-        keys = keys[state[keys] == 0]
-        if len(keys) == 0:
-            return
-        g, kk = keys // span, keys % span + model.index_min
-        sz_ = g_size[g]
-        rows_c = np.repeat(np.arange(len(keys)), sz_)
-        rows_s = g_start[g][rows_c] + (np.arange(len(rows_c)) - np.repeat(np.cumsum(sz_) - sz_, sz_))
-        zs = model.sheet_depth(q[s_all[rows_s]], f_all[rows_s], kk[rows_c])
-        bad_c = np.bincount(rows_c, ~((zs >= z0) & (zs <= z1)), len(keys)) > 0
-        state[keys] = np.where(bad_c, 2, 1)
-
-    key_i = (cn * 2 + 0) * span + (ci - model.index_min)
-    key_j = (cn * 2 + 1) * span + (cj - model.index_min)
-    o = np.lexsort((res, cn))
-    o = o[adm[o]]
-    rank = np.arange(len(o)) - np.searchsorted(cn[o], cn[o])
-    top = o[rank < 4]
-    check(np.concatenate([key_i[top], key_j[top]]))
-    n_ok = np.bincount(cn[top], (state[key_i[top]] == 1) & (state[key_j[top]] == 1), K)
-    rest = o[(rank >= 4) & (n_ok[cn[o]] < 2)]
-    check(np.concatenate([key_i[rest], key_j[rest]]))
-    adm = np.zeros(len(cn), bool)
-    cand = np.concatenate([top, rest])
-    adm[cand[(state[key_i[cand]] == 1) & (state[key_j[cand]] == 1)]] = True
-    # 4. the choice per node, as for a lone found junction
-    o = np.lexsort((res, cn))
-    o = o[adm[o]]
-    if len(o) == 0:
-        return stats
-    st1 = np.searchsorted(cn[o], np.arange(K))
-    cnt_k = np.bincount(cn[o], minlength=K)
-    have = cnt_k > 0
-    b1 = o[np.minimum(st1, len(o) - 1)]
-    b2 = o[np.minimum(st1 + 1, len(o) - 1)]
-    s1 = res[b1] ** 2
-    s2 = np.where(cnt_k > 1, res[b2] ** 2, np.inf)
     # ρ: the larger end-line RMS at the node (camera px)
     rho = np.zeros(K)
     for x in (g_e0, g_e1):
         ex = np.maximum(x, 0)
         v = np.where(x >= 0, e_rms[ex], 0.0)
         rho = np.maximum(rho, np.maximum(v[0::2], v[1::2]))
-    sig2 = np.maximum(np.maximum(s1, noise_floor_px**2), rho**2)
-    with np.errstate(invalid="ignore"):
-        accept = have & ((s2 - s1) / sig2 >= options.min_llr) & (s2 >= options.min_rms_ratio**2 * sig2)
-    if debug is not None:
-        for k in np.flatnonzero(have):
-            debug["nodes"].append(dict(xy=xn[nodes[k]], why="ok" if accept[k] else "ambiguous", ij=(int(ci[b1[k]]), int(cj[b1[k]])),
-                                       r=np.sqrt([s1[k], s2[k]]), rho=rho[k], n_cand=int(cnt_k[k])))
+    # every sample of the node's pieces of family f, on sheet k, inside the volume (decision 0128's step 4): checked
+    # for each node's candidates in the order of their residual until two pass (only the best two admissible
+    # candidates decide); then the choice (step 4). One compiled pass where `RigModel.sheet_depth` takes its kernel.
+    span = model.index_max - model.index_min + 1
+    compiled = False
+    if debug is None and model.cam_xy_table is not None and proj.dist.size <= 5:
+        sheet = (model.cam_xy_table, 1.0 / model.cam_table_px, model.procam.R_proj_cam, model.procam.t_proj_cam, model.index_min,
+                 model.sheet_nodes, 1 if proj.has_distortion else 0, *model._sheet_kernel_tables)
+        compiled, accept, b1 = _k_check_choice(np.r_[0, np.cumsum(tot)].astype(np.int64), ci.astype(np.int64), cj.astype(np.int64), res, adm,
+                                               g_start.astype(np.int64), g_size.astype(np.int64), np.ascontiguousarray(qs),
+                                               f_all.astype(np.int64), int(model.index_min), int(span), z0, z1, sheet, rho,
+                                               float(noise_floor_px**2), float(options.min_llr), float(options.min_rms_ratio**2))
+    if not compiled:
+        # the NumPy path (the reference the kernel is tested against): the 4 best first, the rest only where those
+        # 4 do not hold two admissible ones
+        state = np.zeros(G * span, np.int8)  # per (group, line): 0 not checked, 1 inside the volume, 2 not
+
+        def check(keys):
+            keys = _unique(keys)
+            keys = keys[state[keys] == 0]
+            if len(keys) == 0:
+                return
+            g, kk = keys // span, keys % span + model.index_min
+            sz_ = g_size[g]
+            rows_c = np.repeat(np.arange(len(keys)), sz_)
+            rows_s = g_start[g][rows_c] + (np.arange(len(rows_c)) - np.repeat(np.cumsum(sz_) - sz_, sz_))
+            zs = model.sheet_depth(qs[rows_s], f_all[rows_s], kk[rows_c])
+            bad_c = np.bincount(rows_c, ~((zs >= z0) & (zs <= z1)), len(keys)) > 0
+            state[keys] = np.where(bad_c, 2, 1)
+
+        key_i = (cn * 2 + 0) * span + (ci - model.index_min)
+        key_j = (cn * 2 + 1) * span + (cj - model.index_min)
+        o = np.lexsort((res, cn))
+        o = o[adm[o]]
+        rank = np.arange(len(o)) - np.searchsorted(cn[o], cn[o])
+        top = o[rank < 4]
+        check(np.concatenate([key_i[top], key_j[top]]))
+        n_ok = np.bincount(cn[top], (state[key_i[top]] == 1) & (state[key_j[top]] == 1), K)
+        rest = o[(rank >= 4) & (n_ok[cn[o]] < 2)]
+        check(np.concatenate([key_i[rest], key_j[rest]]))
+        adm = np.zeros(len(cn), bool)
+        cand = np.concatenate([top, rest])
+        adm[cand[(state[key_i[cand]] == 1) & (state[key_j[cand]] == 1)]] = True
+        # 4. the choice per node, as for a lone found junction
+        o = np.lexsort((res, cn))
+        o = o[adm[o]]
+        if len(o) == 0:
+            return stats
+        st1 = np.searchsorted(cn[o], np.arange(K))
+        cnt_k = np.bincount(cn[o], minlength=K)
+        have = cnt_k > 0
+        b1 = o[np.minimum(st1, len(o) - 1)]
+        b2 = o[np.minimum(st1 + 1, len(o) - 1)]
+        s1 = res[b1] ** 2
+        s2 = np.where(cnt_k > 1, res[b2] ** 2, np.inf)
+        sig2 = np.maximum(np.maximum(s1, noise_floor_px**2), rho**2)
+        with np.errstate(invalid="ignore"):
+            accept = have & ((s2 - s1) / sig2 >= options.min_llr) & (s2 >= options.min_rms_ratio**2 * sig2)
+        if debug is not None:
+            for k in np.flatnonzero(have):
+                debug["nodes"].append(dict(xy=xn[nodes[k]], why="ok" if accept[k] else "ambiguous", ij=(int(ci[b1[k]]), int(cj[b1[k]])),
+                                           r=np.sqrt([s1[k], s2[k]]), rho=rho[k], n_cand=int(cnt_k[k])))
     stats["nodes_labelled"] = int(accept.sum())
     proposals: dict = {}
     at_node: set = set()  # the ends (2·piece + side) at an accepted node
@@ -577,21 +892,23 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     # within cross_tol_px of a line of the other family inside the volume; a piece that runs across a depth edge onto
     # a collinear line of another surface meets the other family's lines there anywhere (decisions 0066, 0084)
     if proposals and options.far_end_check:
-        # the end lines of every piece long enough (labelled ones too): the lines a free end may cross
+        # the end lines of every piece long enough (labelled ones too): the lines a free end may cross; fitted
+        # where read (the open pieces' are step 1's)
         long_mask = stops - starts >= options.min_samples
-        e_pt, e_dir, e_rms, e_end, ok_any = _k_end_lines(q, sid, ts, starts64, stops64, long_mask, float(trim_px))
         fr_e, fr_p = [], []
         for p_ in sorted(proposals):
             if len(proposals[p_]) != 1:
                 continue
             for e in (2 * p_, 2 * p_ + 1):
-                if e not in at_node and ok_any[e]:
+                if e not in at_node and ok[e]:
                     fr_e.append(e)
                     fr_p.append(p_)
         if fr_e:
             fr_e = np.array(fr_e, np.int64)
-            Xf, okf = _k_free_end_crossings(fr_e, e_fam.astype(np.int64), ok_any, e_piece.astype(np.int64), e_pt, e_dir, e_end, float(reach_px),
-                                            float(lateral_px), float(merge_px), float(cos_opp), float(np.sin(np.deg2rad(10.0))))
+            done = np.repeat(open_mask, 2)
+            Xf, okf = _k_far_ends(fr_e, e_fam, e_piece, q, sid, ts, starts64, stops64, long_mask, done, e_pt, e_dir, e_rms, e_end, ok,
+                                  float(trim_px), float(reach_px), float(lateral_px), float(merge_px), float(cos_opp),
+                                  float(np.sin(np.deg2rad(10.0))))
             if okf.any():
                 sel = np.flatnonzero(okf)
                 ff = e_fam[fr_e[sel]]
@@ -603,35 +920,26 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
                 for t in np.flatnonzero(bad_far).tolist():
                     proposals[fr_p[sel[t]]] = set()
                     stats["pieces_far_end"] = stats.get("pieces_far_end", 0) + 1
-    # 5. the pieces whose accepted nodes agree, without their samples within trim_px of either end
+    # 5. the pieces whose accepted nodes agree, without their samples within trim_px of either end (an end at no
+    # accepted node is free (a silhouette, a shadow, another crossing): the cut line's ridge is pulled over the
+    # smoothing kernel's reach there, `free_end_trim` smoothing scales); the labelled samples next to a node are
+    # the piece's seeds, as a found junction's would be: the stretch beyond them is then checked at its far end
+    # like any seeded piece's (decision 0084: a piece that runs across a depth edge onto a collinear line of
+    # another surface)
+    pp, kp = [], []
     for p_ in sorted(proposals):
         ks = proposals[p_]
         if len(ks) != 1:
             if len(ks) > 1:
                 stats["pieces_conflicting"] = stats.get("pieces_conflicting", 0) + 1
             continue
-        a_, b_ = starts[p_], stops[p_]
-        t = ts[a_:b_]
-        # an end at no accepted node is free (a silhouette, a shadow, another crossing): the cut line's ridge is
-        # pulled over the smoothing kernel's reach there, `free_end_trim` smoothing scales
-        t0 = options.node_end_trim * trim_px if 2 * p_ in at_node else options.free_end_trim * trim_px
-        t1 = options.node_end_trim * trim_px if 2 * p_ + 1 in at_node else options.free_end_trim * trim_px
-        inner = (t - t[0] >= t0) & (t[-1] - t >= t1)
-        kk = next(iter(ks))
-        if seed is not None:
-            # the labelled samples next to the node are the piece's seeds, as a found junction's would be: the
-            # stretch beyond them is then checked at its far end like any seeded piece's (decision 0084: a piece
-            # that runs across a depth edge onto a collinear line of another surface)
-            near = np.zeros(len(t), bool)
-            if 2 * p_ in at_node:
-                near |= (t - t[0] >= t0) & (t - t[0] <= t0 + 2.0 * trim_px)
-            if 2 * p_ + 1 in at_node:
-                near |= (t[-1] - t >= t1) & (t[-1] - t <= t1 + 2.0 * trim_px)
-            sn = sid[a_:b_][near & inner]
-            sn = sn[~np.isfinite(index[sn])]
-            seed[sn] = kk
-        ss = sid[a_:b_][inner]
-        ss = ss[~np.isfinite(index[ss])]
-        index[ss] = kk
-        stats["samples"] += len(ss)
+        pp.append(p_)
+        kp.append(next(iter(ks)))
+    if pp:
+        at_mask = np.zeros(2 * n_p, np.bool_)
+        at_mask[list(at_node)] = True
+        stats["samples"] += int(_k_label_pieces(np.array(pp, np.int64), np.array(kp, np.int64), at_mask, starts64, stops64, ts, sid, index,
+                                                seed if seed is not None else np.zeros(1, np.int64), seed is not None,
+                                                float(options.node_end_trim * trim_px), float(options.free_end_trim * trim_px),
+                                                float(trim_px)))
     return stats
