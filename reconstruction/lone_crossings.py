@@ -172,6 +172,26 @@ def _k_end_lines(q, sid, ts, starts, stops, open_mask, trim_px):
 
 
 @njit
+def _meet_ahead(pts, dirs, ends, a, b, sin_min, lateral_px, reach_px):
+    """Where end lines a and b (point pts, unit direction dirs, end sample ends) cross: (True, x, y) when they meet at
+    an angle of more than asin(sin_min) and the crossing lies ahead of both ends, from −lateral_px to reach_px along
+    each end's direction; (False, 0, 0) otherwise."""
+    den = dirs[a, 0] * dirs[b, 1] - dirs[a, 1] * dirs[b, 0]
+    if abs(den) <= sin_min:
+        return False, 0.0, 0.0
+    wx = pts[b, 0] - pts[a, 0]
+    wy = pts[b, 1] - pts[a, 1]
+    s = (wx * dirs[b, 1] - wy * dirs[b, 0]) / den
+    x = pts[a, 0] + s * dirs[a, 0]
+    y = pts[a, 1] + s * dirs[a, 1]
+    ha = (x - ends[a, 0]) * dirs[a, 0] + (y - ends[a, 1]) * dirs[a, 1]
+    hb = (x - ends[b, 0]) * dirs[b, 0] + (y - ends[b, 1]) * dirs[b, 1]
+    if ha < -lateral_px or ha > reach_px or hb < -lateral_px or hb > reach_px:
+        return False, 0.0, 0.0
+    return True, x, y
+
+
+@njit
 def _k_crossings(e1, e2, pts, dirs, ends, reach_px, lateral_px, sin_min):
     """Every pair of a family-1 end (e1) and a family-2 end (e2) whose end samples lie within 2·reach_px and whose end
     lines cross ahead of both ends (within reach_px; from −lateral_px), at an angle of at least asin(sin_min):
@@ -192,17 +212,8 @@ def _k_crossings(e1, e2, pts, dirs, ends, reach_px, lateral_px, sin_min):
             dy = ends[a, 1] - ends[b, 1]
             if dx * dx + dy * dy > r2:
                 continue
-            den = dirs[a, 0] * dirs[b, 1] - dirs[a, 1] * dirs[b, 0]
-            if abs(den) <= sin_min:
-                continue
-            wx = pts[b, 0] - pts[a, 0]
-            wy = pts[b, 1] - pts[a, 1]
-            s = (wx * dirs[b, 1] - wy * dirs[b, 0]) / den
-            x = pts[a, 0] + s * dirs[a, 0]
-            y = pts[a, 1] + s * dirs[a, 1]
-            ha = (x - ends[a, 0]) * dirs[a, 0] + (y - ends[a, 1]) * dirs[a, 1]
-            hb = (x - ends[b, 0]) * dirs[b, 0] + (y - ends[b, 1]) * dirs[b, 1]
-            if ha < -lateral_px or ha > reach_px or hb < -lateral_px or hb > reach_px:
+            hit, x, y = _meet_ahead(pts, dirs, ends, a, b, sin_min, lateral_px, reach_px)
+            if not hit:
                 continue
             if m == cap:
                 cap *= 2
@@ -418,17 +429,8 @@ def _k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, done
                 done[b] = True
             if not ok[b]:
                 continue
-            den = dirs[a, 0] * dirs[b, 1] - dirs[a, 1] * dirs[b, 0]
-            if abs(den) <= sin_min:
-                continue
-            wx = pts[b, 0] - pts[a, 0]
-            wy = pts[b, 1] - pts[a, 1]
-            t = (wx * dirs[b, 1] - wy * dirs[b, 0]) / den
-            x = pts[a, 0] + t * dirs[a, 0]
-            y = pts[a, 1] + t * dirs[a, 1]
-            ha = (x - ends[a, 0]) * dirs[a, 0] + (y - ends[a, 1]) * dirs[a, 1]
-            hb = (x - ends[b, 0]) * dirs[b, 0] + (y - ends[b, 1]) * dirs[b, 1]
-            if ha < -lateral_px or ha > reach_px or hb < -lateral_px or hb > reach_px:
+            hit, x, y = _meet_ahead(pts, dirs, ends, a, b, sin_min, lateral_px, reach_px)
+            if not hit:
                 continue
             xs[cnt, 0] = x
             xs[cnt, 1] = y
