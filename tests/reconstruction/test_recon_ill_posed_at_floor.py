@@ -21,6 +21,7 @@ from reconstruction.pipeline import ReconstructOptions, judged_margin, reconstru
 from reconstruction.placement import DECIDE_PX, EPIPOLAR_FLOOR_PX, MIN_RMS_RATIO, labelling_margin
 from reconstruction.rigmodel import UNLABELLED, rig_model
 from reconstruction.extraction import GridObservation
+from tests.reconstruction._truth import lattice_edges
 
 VOLUME = (785.0, 1196.0)  # seed 103's working volume (its scene's depth range)
 WRONG = np.array([1, -1])
@@ -55,15 +56,7 @@ def _plane(procam: ProCam, pattern: GridPattern, noise_px: float, seed: int = 0)
     cam = procam.camera
     inside = (q[:, 0] > 5) & (q[:, 0] < cam.width - 6) & (q[:, 1] > 5) & (q[:, 1] < cam.height - 6) & (np.abs(lab) <= 12).all(axis=1)
     lab, q = lab[inside], q[inside]
-    key = {tuple(v): k for k, v in enumerate(lab.tolist())}
-    edges, delta = [], []
-    for k, (i, j) in enumerate(lab.tolist()):
-        for d in ((1, 0), (0, 1)):
-            o = key.get((i + d[0], j + d[1]))
-            if o is not None:
-                edges.append((k, o))
-                delta.append(d)
-    return lab, q, np.array(edges, np.int64), np.array(delta, np.int64)
+    return (lab, q, *lattice_edges(lab))
 
 
 def _obs(q: np.ndarray, edges: np.ndarray, delta: np.ndarray) -> GridObservation:

@@ -21,6 +21,7 @@ from reconstruction.labelling import (
 )
 from reconstruction.patterns import GridPattern
 from reconstruction.rigmodel import UNLABELLED, rig_model
+from tests.reconstruction._truth import lattice_edges
 
 
 def _procam(t=(180.0, 60.0, 40.0), dist_proj=(0.03, 0, 0, 0, 0)) -> ProCam:
@@ -60,15 +61,7 @@ def _plane_junctions(procam: ProCam, pattern: GridPattern, *, z0=850.0, normal=(
     q = q + np.random.default_rng(seed).normal(0, noise_px, q.shape)
     inside = (q[:, 0] > 5) & (q[:, 0] < 634) & (q[:, 1] > 5) & (q[:, 1] < 474)
     lab, q = lab[inside], q[inside]
-    key = {tuple(v): k for k, v in enumerate(lab.tolist())}
-    edges, delta = [], []
-    for k, (i, j) in enumerate(lab.tolist()):
-        for d in ((1, 0), (0, 1)):
-            o = key.get((i + d[0], j + d[1]))
-            if o is not None:
-                edges.append((k, o))
-                delta.append(d)
-    return lab, q, np.array(edges), np.array(delta)
+    return (lab, q, *lattice_edges(lab))
 
 
 def _correct(labels: np.ndarray, truth: np.ndarray) -> tuple[int, int]:

@@ -20,6 +20,7 @@ from reconstruction.extraction import GridObservation
 from reconstruction.labelling import LabelOptions, label_epipolar
 from reconstruction.patterns import GridPattern
 from reconstruction.rigmodel import UNLABELLED, rig_model
+from tests.reconstruction._truth import lattice_edges
 
 _spec = importlib.util.spec_from_file_location("_amb_helpers_cut", Path(__file__).with_name("test_recon_ambiguous_wellposed.py"))
 _a = importlib.util.module_from_spec(_spec)
@@ -89,15 +90,10 @@ def _scene():
     truth, q = _junctions(procam, pattern, lambda i, j: in_patch(i, j) or in_a(i, j) or in_b(i, j))
     key = {tuple(v): k for k, v in enumerate(truth.tolist())}
     part = [0 if in_patch(i, j) else 1 if in_a(i, j) else 2 for i, j in truth.tolist()]
-    edges, delta = [], []
-    for k, (i, j) in enumerate(truth.tolist()):
-        for d in ((1, 0), (0, 1)):
-            o = key.get((i + d[0], j + d[1]))
-            if o is not None and part[o] == part[k]:
-                edges.append((k, o)), delta.append(d)
+    edges, delta = lattice_edges(truth, lambda k, o: part[o] == part[k])
     a, b = key[(4, -3)], key[(2, 2)]  # true step (−2, 5)
-    edges.append((a, b)), delta.append((0, 1))
-    return procam, pattern, truth, q, np.array(edges, np.int64), np.array(delta, np.int64), np.array(part)
+    edges, delta = np.vstack([edges, [(a, b)]]), np.vstack([delta, [(0, 1)]])
+    return procam, pattern, truth, q, edges, delta, np.array(part)
 
 
 def _label(procam, pattern, q, edges, delta, **opts):
