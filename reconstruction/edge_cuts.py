@@ -21,13 +21,8 @@ import math
 
 import numpy as np
 
+from reconstruction._ambiguity_kernels import _signed_residual as _signed
 from reconstruction._jit import njit
-
-
-@njit
-def _signed(ln, k, xy_junction, i, j, fx):
-    """(l_k · (x, y, 1))·fx for the pattern junction at array index (i, j); as `_ambiguity_kernels._signed_residual`."""
-    return (ln[k, 0] * xy_junction[i, j, 0] + ln[k, 1] * xy_junction[i, j, 1] + ln[k, 2]) * fx
 
 
 @njit
