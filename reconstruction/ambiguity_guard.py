@@ -73,6 +73,8 @@ def attached_pairs(q, fam, valid, qj, amb, amb_lab, jdir, radius, lateral):
             continue
         sx = np.intp(math.floor((q[s, 0] - x0) / radius))
         sy = np.intp(math.floor((q[s, 1] - y0) / radius))
+        if sx < -1 or sx > gw or sy < -1 or sy > gh:
+            continue  # none of the 3×3 cells around it is on the grid (decision 0145: most samples, before the cell loop)
         for yy in range(sy - 1, sy + 2):
             if yy < 0 or yy >= gh:
                 continue

@@ -915,7 +915,11 @@ def _after_rounds(stats, q, fam, sid, piece, ts, tangent, index, seed_jid, was_u
                   across_px, mix_sigma, trim_px, tol_px, margin, lateral_px, min_samples, anchor, ends) -> None:
     """Decision 0106's pass after the rounds, into stats: the trimmed ends facing an unlabelled piece (`_label_ends`,
     when ends)."""
-    if ends:
+    if ends and stats["samples"] == 0:
+        # the rounds labelled nothing: no piece this step labelled, so no end to look at (`_k_end_rows` would return
+        # none; decision 0145: most frames where this step labels nothing)
+        stats["samples_ends"] = 0
+    elif ends:
         stats["samples_ends"] = _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, model=model,
                                             depth_range_mm=depth_range_mm, grid=grid, reach_px=reach_px, lateral_px=lateral_px, tol_px=tol_px,
                                             anchor=anchor)
