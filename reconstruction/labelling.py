@@ -937,6 +937,8 @@ class TraceOptions:
     from_segments: bool = True
     piece_seeds: bool = False  # decision 0131: off (on unseen scenes its few points are often wrong; decision 0089 measured it small)
     piece_junctions: bool = True
+    piece_junction_min_nodes: int = 2
+    frame_through: bool = True
     surface_labels: bool = True
     surface_rounds: int = 3
     surface_radius: float = 1.0
@@ -1523,7 +1525,8 @@ def label_samples(
                                        reach_px=0.5 * (cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                               min_angle_deg=options.continue_gap_deg or 45.0)),
                                        lateral_px=options.seed_lateral_px * cell, q_out=q_out, t_nodes=options.t_nodes,
-                                       label_options=None if label_options is None else replace(label_options, min_component=3))
+                                       label_options=None if label_options is None else replace(label_options, min_component=options.piece_junction_min_nodes),
+                                       frame_through=options.frame_through, frame_margin_px=float(cell))
             stats["samples_piece_junctions"] = pj["samples"]
             _guard()
         if options.lone_crossings and model is not None:

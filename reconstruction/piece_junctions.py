@@ -194,6 +194,18 @@ def _k_node_ends(node_end, E, U, fe, xy, lateral):
 
 
 @njit
+def _k_leaves_frame(x, y, dx, dy, reach, fw, fh, margin):
+    """Decision 0143: does the line from (x, y) along the unit direction (dx, dy) leave the frame (fw × fh camera
+    px, less margin px at every side) within reach px? There its continuation cannot be seen: a node whose line
+    runs out of the image a short way past it shows one side only without being a T. fw ≤ 0: never."""
+    if fw <= 0.0:
+        return False
+    ex = x + reach * dx
+    ey = y + reach * dy
+    return ex < margin or ey < margin or ex > fw - 1.0 - margin or ey > fh - 1.0 - margin
+
+
+@njit
 def _k_end_pairs_f(E, U, pos, first, last, piece, ts, q, sid, trim_px, anchor, fe, rows, radius, sin_min):
     """The crossing at each end rows[i]: among the ends of the other family within radius of its end sample
     E (R, 2), the intersection of the two end lines that lies ahead of both ends (along their outward
@@ -518,7 +530,8 @@ def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_
 
 
 @njit
-def _k_nodes(E, U, fe, h, c, merge_px, reach, lateral, continue_px, x_both, q, fam, x0, y0, cell, gw, gh, start, items, pos_of):
+def _k_nodes(E, U, fe, h, c, merge_px, reach, lateral, continue_px, x_both, q, fam, x0, y0, cell, gw, gh, start, items, pos_of,
+             fw=0.0, fh=0.0, margin=0.0):
     """Steps 2–3: nodes (clusters of the crossings at their means), the ends without a crossing of their own
     associated by position, the X test (`_k_node_ends`, `_k_continues`). Returns the nodes xy (K, 2), each end
     row's node (−1: none or not an X), the number of ends associated (−1: no association step) and the number
@@ -564,6 +577,11 @@ def _k_nodes(E, U, fe, h, c, merge_px, reach, lateral, continue_px, x_both, q, f
     for k in range(K):
         for f in range(2):
             two[k, f] = ne[k, f] >= 2 and math.hypot(sx[k, f], sy[k, f]) <= ne[k, f] - 1.5
+            if not two[k, f] and ne[k, f] == 1 and continue_px > 0:
+                # decision 0143: one end, and its line leaves the frame within continue_px past the node: the far
+                # side cannot be seen, the frame is no edge of the surface (fw 0: off)
+                nrm = max(math.hypot(sx[k, f], sy[k, f]), 1e-12)
+                two[k, f] = _k_leaves_frame(xy[k, 0], xy[k, 1], sx[k, f] / nrm, sy[k, f] / nrm, continue_px, fw, fh, margin)
             through[k, f] = two[k, f]
     # the continuation test only where it decides: a node with both families, one of them two-sided, no end
     # line off it, and (x_both) a one-sided family (with x_both False a two-sided family is already through)
@@ -987,6 +1005,8 @@ def label_piece_junctions(
     t_nodes: bool = False,
     t_ends: str = "refit",
     t_rule: str = "after",
+    frame_through: bool = False,
+    frame_margin_px: float = 0.0,
 ) -> dict:
     """Label unlabelled pieces from junctions built at the crossings of pieces (module doc).
 
@@ -1017,6 +1037,9 @@ def label_piece_junctions(
     measurement switch). label_options: `labelling.LabelOptions` (default: min_component 3; the depth range
     is set from depth_range_mm).
 
+    frame_through: a family with one end at a node whose line leaves the camera frame (less frame_margin_px) within
+    continue_px past the node counts as running through it, in the X test and for the T's stems (decision 0143).
+
     Compiled (`_k_front`, `_k_nodes`, `_k_edge_inputs`, `_k_use`, `_k_anchors`, `_k_select`, `_k_write`: decision
     0092, "Time"); decision 0092's other measurement switches run only in the NumPy reference in the tests
     (decision 0097). debug: filled with the nodes' positions `xy` and labels `labels` (UNLABELLED where none).
@@ -1042,12 +1065,13 @@ def label_piece_junctions(
     # 2–3. nodes, ends associated by position, only X's
     if continue_px is None:
         continue_px = reach_px
+    fw, fh = (float(model.procam.camera.width), float(model.procam.camera.height)) if frame_through else (0.0, 0.0)
     xy, node_end, n_assoc, n_not = _k_nodes(E, U, fe, h, c, float(merge_px), float(reach_px), float(lateral_px), float(continue_px),
-                                            bool(x_both and not t_nodes), q, fam, *grid)
+                                            bool(x_both and not t_nodes), q, fam, *grid, fw, fh, float(frame_margin_px))
     if t_nodes:  # decision 0098: which family stops at each node
         from reconstruction.t_nodes import rim_ts, t_labels, t_node_stems, through_end_samples, through_kept, through_refit, x_use
 
-        stem = t_node_stems(xy, node_end, E, U, fe, float(lateral_px), float(continue_px), q, fam, *grid)
+        stem = t_node_stems(xy, node_end, E, U, fe, float(lateral_px), float(continue_px), q, fam, *grid, fw, fh, float(frame_margin_px))
     n_nodes = len(xy)
     stats["nodes"] = n_nodes
     if n_assoc >= 0:
