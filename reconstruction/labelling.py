@@ -1526,7 +1526,8 @@ def label_samples(
                                                                               min_angle_deg=options.continue_gap_deg or 45.0)),
                                        lateral_px=options.seed_lateral_px * cell, q_out=q_out, t_nodes=options.t_nodes,
                                        label_options=None if label_options is None else replace(label_options, min_component=options.piece_junction_min_nodes),
-                                       frame_through=options.frame_through, frame_margin_px=float(cell))
+                                       frame_through=options.frame_through, frame_margin_px=float(cell),
+                                       pair_min_px=2.0 * (options.mix_sigma + options.cross_trim_sigma) * sigma_px + cell)
             stats["samples_piece_junctions"] = pj["samples"]
             _guard()
         if options.lone_crossings and model is not None:

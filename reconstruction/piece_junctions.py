@@ -974,6 +974,46 @@ def _k_write(sel, mom, tdir, L, ed, a_j, b_j, fam_s, cand, first, last, ts, q, s
     return n_pieces, n_samples, (n_moved if move else -1)
 
 
+def _short_pairs_out(sub: np.ndarray, renum: np.ndarray, ek: np.ndarray, edges: np.ndarray, xy: np.ndarray, min_px: float,
+                     at_frame: np.ndarray):
+    """Decision 0143: of the nodes used (sub, their new numbers renum, the edges between them ek, as `t_nodes.x_use`
+    returns them), the components of exactly two nodes are kept only where one of them lies at the frame (at_frame
+    (K,) bool, by node: the frame, not the surface, cut the component short) and the two lie min_px apart or more.
+    Elsewhere a pair is left to the lone crossings (decision 0139), which label both lines at each node (on unseen
+    seed 153 the pairs took pieces from 0139's nodes: coverage −0.36 points). Between two crossings closer than
+    min_px the piece's samples all lie within the crossings' pull (the mixing zone and the trimmed ends): its edge
+    names the line right, but the samples it writes are biased across the line, on a face whose lines run near the
+    epipolar direction a depth error of percent (unseen seed 126: two points 1.3 and 1.6 % off). Returns sub,
+    renum, ek."""
+    m = len(sub)
+    parent = np.arange(m)
+
+    def root(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for t in ek.tolist():
+        a, b = root(renum[edges[t, 0]]), root(renum[edges[t, 1]])
+        if a != b:
+            parent[max(a, b)] = min(a, b)
+    r = np.array([root(a) for a in range(m)])
+    size = np.bincount(r, minlength=m)
+    drop = np.zeros(m, bool)
+    for c in np.flatnonzero(size == 2).tolist():
+        a, b = np.flatnonzero(r == c)
+        if not (at_frame[sub[a]] or at_frame[sub[b]]) or math.hypot(*(xy[sub[a]] - xy[sub[b]])) < min_px:
+            drop[a] = drop[b] = True
+    if not drop.any():
+        return sub, renum, ek
+    keep_sub = sub[~drop]
+    renum2 = np.full(len(renum), -1, np.int64)
+    renum2[keep_sub] = np.arange(len(keep_sub))
+    ek2 = np.array([t for t in ek.tolist() if renum2[edges[t, 0]] >= 0 and renum2[edges[t, 1]] >= 0], np.int64)
+    return keep_sub, renum2, ek2
+
+
 def label_piece_junctions(
     q: np.ndarray,
     fam: np.ndarray,
@@ -1007,6 +1047,7 @@ def label_piece_junctions(
     t_rule: str = "after",
     frame_through: bool = False,
     frame_margin_px: float = 0.0,
+    pair_min_px: float = 0.0,
 ) -> dict:
     """Label unlabelled pieces from junctions built at the crossings of pieces (module doc).
 
@@ -1037,6 +1078,9 @@ def label_piece_junctions(
     measurement switch). label_options: `labelling.LabelOptions` (default: min_component 3; the depth range
     is set from depth_range_mm).
 
+    pair_min_px: with label_options' min_component 2, a component of two nodes is labelled only where one of them
+    lies within continue_px of the frame (frame_through on) and the two lie at least this far apart (decision 0143:
+    its one edge must hold samples beyond both crossings' pull).
     frame_through: a family with one end at a node whose line leaves the camera frame (less frame_margin_px) within
     continue_px past the node counts as running through it, in the X test and for the T's stems (decision 0143).
 
@@ -1105,6 +1149,15 @@ def label_piece_junctions(
         sub, renum, ek = x_use(n_nodes, edges, np.ascontiguousarray(eseg, np.int64), cand, labelled, stem_g, int(lo.min_component))
     else:
         sub, renum, ek = _k_use(n_nodes, edges, np.ascontiguousarray(eseg, np.int64), cand, labelled, int(lo.min_component))
+    if len(sub) and int(lo.min_component) <= 2:
+        # decision 0143: a component of two nodes only where the frame cut it (a node within continue_px of the
+        # frame's edge, less the margin) and its nodes lie pair_min_px apart
+        if fw > 0:
+            d_edge = np.minimum(np.minimum(xy[:, 0], xy[:, 1]), np.minimum(fw - 1.0 - xy[:, 0], fh - 1.0 - xy[:, 1])) - float(frame_margin_px)
+            at_frame = d_edge <= float(continue_px)
+        else:
+            at_frame = np.zeros(n_nodes, bool)
+        sub, renum, ek = _short_pairs_out(sub, renum, ek, edges, xy, float(pair_min_px), at_frame)
     stats["nodes_used"] = int(len(sub))
     if len(sub) == 0:
         return stats
