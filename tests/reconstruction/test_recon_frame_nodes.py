@@ -80,3 +80,21 @@ def test_frame_nodes_label_the_patch_right(orthogonal):
     # the junction labels are unchanged (the step labels samples only)
     assert np.array_equal(on.junction_labels, off.junction_labels)
 
+
+
+def test_pairs_kept_only_at_the_frame_and_beyond_the_crossings_pull():
+    from reconstruction.piece_junctions import _short_pairs_out
+
+    # nodes 0-1: a pair at the frame, 40 px apart; 2-3: a pair 40 px apart inside the image; 4-5: a pair at the
+    # frame 8 px apart; 6-7-8: a component of three inside the image
+    xy = np.array([(5.0, 100.0), (45.0, 100.0), (300.0, 100.0), (340.0, 100.0), (5.0, 300.0), (13.0, 300.0),
+                   (300.0, 300.0), (340.0, 300.0), (380.0, 300.0)])
+    at_frame = xy[:, 0] < 20.0
+    edges = np.array([(0, 1), (2, 3), (4, 5), (6, 7), (7, 8)], np.int64)
+    sub = np.arange(9)
+    renum = np.arange(9)
+    ek = np.arange(5)
+    s2, r2, e2 = _short_pairs_out(sub, renum, ek, edges, xy, 20.0, at_frame)
+    assert s2.tolist() == [0, 1, 6, 7, 8]
+    assert r2.tolist() == [0, 1, -1, -1, -1, -1, 2, 3, 4]
+    assert e2.tolist() == [0, 3, 4]
