@@ -974,6 +974,44 @@ def _k_write(sel, mom, tdir, L, ed, a_j, b_j, fam_s, cand, first, last, ts, q, s
     return n_pieces, n_samples, (n_moved if move else -1)
 
 
+@njit
+def _k_short_pairs(sub, renum, ek, edges, xy, min_px, at_frame):
+    """`_short_pairs_out`'s test, compiled: (m,) bool, the used nodes (sub (m,)) in components of exactly two (over
+    the edges rows ek, node numbers renum) that are not at the frame or closer than min_px."""
+    m = sub.shape[0]
+    parent = np.arange(m)
+    for t in ek:
+        a = _union_find_root(parent, renum[edges[t, 0]])
+        b = _union_find_root(parent, renum[edges[t, 1]])
+        if a != b:
+            if a < b:
+                parent[b] = a
+            else:
+                parent[a] = b
+    r = np.empty(m, np.int64)
+    size = np.zeros(m, np.int64)
+    first = np.full(m, -1, np.int64)
+    second = np.full(m, -1, np.int64)
+    for a in range(m):
+        r[a] = _union_find_root(parent, a)
+        size[r[a]] += 1
+        if first[r[a]] < 0:
+            first[r[a]] = a
+        elif second[r[a]] < 0:
+            second[r[a]] = a
+    drop = np.zeros(m, np.bool_)
+    for c in range(m):
+        if size[c] == 2:
+            a = first[c]
+            b = second[c]
+            na = sub[a]
+            nb = sub[b]
+            if not (at_frame[na] or at_frame[nb]) or math.hypot(xy[na, 0] - xy[nb, 0], xy[na, 1] - xy[nb, 1]) < min_px:
+                drop[a] = True
+                drop[b] = True
+    return drop
+
+
 def _short_pairs_out(sub: np.ndarray, renum: np.ndarray, ek: np.ndarray, edges: np.ndarray, xy: np.ndarray, min_px: float,
                      at_frame: np.ndarray):
     """Decision 0143: of the nodes used (sub, their new numbers renum, the edges between them ek, as `t_nodes.x_use`
@@ -985,32 +1023,13 @@ def _short_pairs_out(sub: np.ndarray, renum: np.ndarray, ek: np.ndarray, edges: 
     names the line right, but the samples it writes are biased across the line, on a face whose lines run near the
     epipolar direction a depth error of percent (unseen seed 126: two points 1.3 and 1.6 % off). Returns sub,
     renum, ek."""
-    m = len(sub)
-    parent = np.arange(m)
-
-    def root(a):
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
-
-    for t in ek.tolist():
-        a, b = root(renum[edges[t, 0]]), root(renum[edges[t, 1]])
-        if a != b:
-            parent[max(a, b)] = min(a, b)
-    r = np.array([root(a) for a in range(m)])
-    size = np.bincount(r, minlength=m)
-    drop = np.zeros(m, bool)
-    for c in np.flatnonzero(size == 2).tolist():
-        a, b = np.flatnonzero(r == c)
-        if not (at_frame[sub[a]] or at_frame[sub[b]]) or math.hypot(*(xy[sub[a]] - xy[sub[b]])) < min_px:
-            drop[a] = drop[b] = True
+    drop = _k_short_pairs(sub, renum, ek, edges, xy, float(min_px), at_frame)
     if not drop.any():
         return sub, renum, ek
     keep_sub = sub[~drop]
     renum2 = np.full(len(renum), -1, np.int64)
     renum2[keep_sub] = np.arange(len(keep_sub))
-    ek2 = np.array([t for t in ek.tolist() if renum2[edges[t, 0]] >= 0 and renum2[edges[t, 1]] >= 0], np.int64)
+    ek2 = ek[(renum2[edges[ek, 0]] >= 0) & (renum2[edges[ek, 1]] >= 0)]
     return keep_sub, renum2, ek2
 
 
@@ -1157,7 +1176,7 @@ def label_piece_junctions(
             at_frame = d_edge <= float(continue_px)
         else:
             at_frame = np.zeros(n_nodes, bool)
-        sub, renum, ek = _short_pairs_out(sub, renum, ek, edges, xy, float(pair_min_px), at_frame)
+        sub, renum, ek = _short_pairs_out(sub, renum, ek, edges, np.ascontiguousarray(xy, np.float64), float(pair_min_px), at_frame)
     stats["nodes_used"] = int(len(sub))
     if len(sub) == 0:
         return stats
