@@ -197,8 +197,12 @@ def _k_node_ends(node_end, E, U, fe, xy, lateral):
 def _k_leaves_frame(x, y, dx, dy, reach, fw, fh, margin):
     """Decision 0143: does the line from (x, y) along the unit direction (dx, dy) leave the frame (fw × fh camera
     px, less margin px at every side) within reach px? There its continuation cannot be seen: a node whose line
-    runs out of the image a short way past it shows one side only without being a T. fw ≤ 0: never."""
+    runs out of the image a short way past it shows one side only without being a T. A point inside the margin band
+    itself (or beyond the frame) is not judged: False (the ridges there are fitted against the frame's edge, a node
+    there may be an extrapolation into it). fw ≤ 0: never."""
     if fw <= 0.0:
+        return False
+    if x < margin or y < margin or x > fw - 1.0 - margin or y > fh - 1.0 - margin:
         return False
     ex = x + reach * dx
     ey = y + reach * dy

@@ -24,6 +24,8 @@ def test_leaves_frame_within_reach_only():
     assert not _k_leaves_frame(5.0, 40.0, 1.0, 0.0, 6.0, 100.0, 80.0, 1.0)  # away from the border
     assert _k_leaves_frame(50.0, 75.0, 0.0, 1.0, 4.0, 100.0, 80.0, 1.0)  # y 75 → 79 > 78
     assert not _k_leaves_frame(5.0, 40.0, -1.0, 0.0, 6.0, 0.0, 0.0, 1.0)  # fw 0: off
+    assert not _k_leaves_frame(50.0, 78.6, 0.0, 1.0, 4.0, 100.0, 80.0, 1.0)  # the node itself in the margin band
+    assert not _k_leaves_frame(-3.0, 40.0, -1.0, 0.0, 6.0, 100.0, 80.0, 1.0)  # or outside the frame
 
 
 def _t_case():
