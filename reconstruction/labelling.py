@@ -906,6 +906,12 @@ class TraceOptions:
     lone_crossings: label the pieces at a crossing of unlabelled pieces (an X, or a T) from the crossing's own epipolar
         residual among the junctions the working volume leaves for its pieces, judged as a lone found junction
         (`reconstruction.lone_crossings`, decision 0139); runs after the piece junctions.
+    frame_through: in the piece junctions' X test and T stems, a family with one end at a node (inside the frame by
+        one cell) whose line leaves the camera frame within the continuation's reach past it runs through it: the
+        frame is no edge of the surface (decision 0143).
+    piece_junction_min_nodes: the smallest component of the piece junctions' X nodes given to `label_epipolar` (with
+        a label_options); a component of two only where one node lies at the frame and the two lie
+        2·(mix_sigma + cross_trim_sigma)·σ + one cell apart (decision 0143; 3: decision 0092's rule).
     """
 
     mix_sigma: float = 2.0
