@@ -906,6 +906,12 @@ class TraceOptions:
     lone_crossings: label the pieces at a crossing of unlabelled pieces (an X, or a T) from the crossing's own epipolar
         residual among the junctions the working volume leaves for its pieces, judged as a lone found junction
         (`reconstruction.lone_crossings`, decision 0139); runs after the piece junctions.
+    frame_through: in the piece junctions' X test and T stems, a family with one end at a node (inside the frame by
+        one cell) whose line leaves the camera frame within the continuation's reach past it runs through it: the
+        frame is no edge of the surface (decision 0143).
+    piece_junction_min_nodes: the smallest component of the piece junctions' X nodes given to `label_epipolar` (with
+        a label_options); a component of two only where one node lies at the frame and the two lie
+        2·(mix_sigma + cross_trim_sigma)·σ + one cell apart (decision 0143; 3: decision 0092's rule).
     """
 
     mix_sigma: float = 2.0
@@ -937,6 +943,8 @@ class TraceOptions:
     from_segments: bool = True
     piece_seeds: bool = False  # decision 0131: off (on unseen scenes its few points are often wrong; decision 0089 measured it small)
     piece_junctions: bool = True
+    piece_junction_min_nodes: int = 2
+    frame_through: bool = True
     surface_labels: bool = True
     surface_rounds: int = 3
     surface_radius: float = 1.0
@@ -1523,7 +1531,9 @@ def label_samples(
                                        reach_px=0.5 * (cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                               min_angle_deg=options.continue_gap_deg or 45.0)),
                                        lateral_px=options.seed_lateral_px * cell, q_out=q_out, t_nodes=options.t_nodes,
-                                       label_options=None if label_options is None else replace(label_options, min_component=3))
+                                       label_options=None if label_options is None else replace(label_options, min_component=options.piece_junction_min_nodes),
+                                       frame_through=options.frame_through, frame_margin_px=float(cell),
+                                       pair_min_px=2.0 * (options.mix_sigma + options.cross_trim_sigma) * sigma_px + cell)
             stats["samples_piece_junctions"] = pj["samples"]
             _guard()
         if options.lone_crossings and model is not None:

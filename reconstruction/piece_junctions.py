@@ -194,6 +194,22 @@ def _k_node_ends(node_end, E, U, fe, xy, lateral):
 
 
 @njit
+def _k_leaves_frame(x, y, dx, dy, reach, fw, fh, margin):
+    """Decision 0143: does the line from (x, y) along the unit direction (dx, dy) leave the frame (fw × fh camera
+    px, less margin px at every side) within reach px? There its continuation cannot be seen: a node whose line
+    runs out of the image a short way past it shows one side only without being a T. A point inside the margin band
+    itself (or beyond the frame) is not judged: False (the ridges there are fitted against the frame's edge, a node
+    there may be an extrapolation into it). fw ≤ 0: never."""
+    if fw <= 0.0:
+        return False
+    if x < margin or y < margin or x > fw - 1.0 - margin or y > fh - 1.0 - margin:
+        return False
+    ex = x + reach * dx
+    ey = y + reach * dy
+    return ex < margin or ey < margin or ex > fw - 1.0 - margin or ey > fh - 1.0 - margin
+
+
+@njit
 def _k_end_pairs_f(E, U, pos, first, last, piece, ts, q, sid, trim_px, anchor, fe, rows, radius, sin_min):
     """The crossing at each end rows[i]: among the ends of the other family within radius of its end sample
     E (R, 2), the intersection of the two end lines that lies ahead of both ends (along their outward
@@ -518,7 +534,8 @@ def _k_front(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_
 
 
 @njit
-def _k_nodes(E, U, fe, h, c, merge_px, reach, lateral, continue_px, x_both, q, fam, x0, y0, cell, gw, gh, start, items, pos_of):
+def _k_nodes(E, U, fe, h, c, merge_px, reach, lateral, continue_px, x_both, q, fam, x0, y0, cell, gw, gh, start, items, pos_of,
+             fw=0.0, fh=0.0, margin=0.0):
     """Steps 2–3: nodes (clusters of the crossings at their means), the ends without a crossing of their own
     associated by position, the X test (`_k_node_ends`, `_k_continues`). Returns the nodes xy (K, 2), each end
     row's node (−1: none or not an X), the number of ends associated (−1: no association step) and the number
@@ -564,6 +581,11 @@ def _k_nodes(E, U, fe, h, c, merge_px, reach, lateral, continue_px, x_both, q, f
     for k in range(K):
         for f in range(2):
             two[k, f] = ne[k, f] >= 2 and math.hypot(sx[k, f], sy[k, f]) <= ne[k, f] - 1.5
+            if not two[k, f] and ne[k, f] == 1 and continue_px > 0:
+                # decision 0143: one end, and its line leaves the frame within continue_px past the node: the far
+                # side cannot be seen, the frame is no edge of the surface (fw 0: off)
+                nrm = max(math.hypot(sx[k, f], sy[k, f]), 1e-12)
+                two[k, f] = _k_leaves_frame(xy[k, 0], xy[k, 1], sx[k, f] / nrm, sy[k, f] / nrm, continue_px, fw, fh, margin)
             through[k, f] = two[k, f]
     # the continuation test only where it decides: a node with both families, one of them two-sided, no end
     # line off it, and (x_both) a one-sided family (with x_both False a two-sided family is already through)
@@ -956,6 +978,65 @@ def _k_write(sel, mom, tdir, L, ed, a_j, b_j, fam_s, cand, first, last, ts, q, s
     return n_pieces, n_samples, (n_moved if move else -1)
 
 
+@njit
+def _k_short_pairs(sub, renum, ek, edges, xy, min_px, at_frame):
+    """`_short_pairs_out`'s test, compiled: (m,) bool, the used nodes (sub (m,)) in components of exactly two (over
+    the edges rows ek, node numbers renum) that are not at the frame or closer than min_px."""
+    m = sub.shape[0]
+    parent = np.arange(m)
+    for t in ek:
+        a = _union_find_root(parent, renum[edges[t, 0]])
+        b = _union_find_root(parent, renum[edges[t, 1]])
+        if a != b:
+            if a < b:
+                parent[b] = a
+            else:
+                parent[a] = b
+    r = np.empty(m, np.int64)
+    size = np.zeros(m, np.int64)
+    first = np.full(m, -1, np.int64)
+    second = np.full(m, -1, np.int64)
+    for a in range(m):
+        r[a] = _union_find_root(parent, a)
+        size[r[a]] += 1
+        if first[r[a]] < 0:
+            first[r[a]] = a
+        elif second[r[a]] < 0:
+            second[r[a]] = a
+    drop = np.zeros(m, np.bool_)
+    for c in range(m):
+        if size[c] == 2:
+            a = first[c]
+            b = second[c]
+            na = sub[a]
+            nb = sub[b]
+            if not (at_frame[na] or at_frame[nb]) or math.hypot(xy[na, 0] - xy[nb, 0], xy[na, 1] - xy[nb, 1]) < min_px:
+                drop[a] = True
+                drop[b] = True
+    return drop
+
+
+def _short_pairs_out(sub: np.ndarray, renum: np.ndarray, ek: np.ndarray, edges: np.ndarray, xy: np.ndarray, min_px: float,
+                     at_frame: np.ndarray):
+    """Decision 0143: of the nodes used (sub, their new numbers renum, the edges between them ek, as `t_nodes.x_use`
+    returns them), the components of exactly two nodes are kept only where one of them lies at the frame (at_frame
+    (K,) bool, by node: the frame, not the surface, cut the component short) and the two lie min_px apart or more.
+    Elsewhere a pair is left to the lone crossings (decision 0139), which label both lines at each node (on unseen
+    seed 153 the pairs took pieces from 0139's nodes: coverage −0.36 points). Between two crossings closer than
+    min_px the piece's samples all lie within the crossings' pull (the mixing zone and the trimmed ends): its edge
+    names the line right, but the samples it writes are biased across the line, on a face whose lines run near the
+    epipolar direction a depth error of percent (unseen seed 126: two points 1.3 and 1.6 % off). Returns sub,
+    renum, ek."""
+    drop = _k_short_pairs(sub, renum, ek, edges, xy, float(min_px), at_frame)
+    if not drop.any():
+        return sub, renum, ek
+    keep_sub = sub[~drop]
+    renum2 = np.full(len(renum), -1, np.int64)
+    renum2[keep_sub] = np.arange(len(keep_sub))
+    ek2 = ek[(renum2[edges[ek, 0]] >= 0) & (renum2[edges[ek, 1]] >= 0)]
+    return keep_sub, renum2, ek2
+
+
 def label_piece_junctions(
     q: np.ndarray,
     fam: np.ndarray,
@@ -987,6 +1068,9 @@ def label_piece_junctions(
     t_nodes: bool = False,
     t_ends: str = "refit",
     t_rule: str = "after",
+    frame_through: bool = False,
+    frame_margin_px: float = 0.0,
+    pair_min_px: float = 0.0,
 ) -> dict:
     """Label unlabelled pieces from junctions built at the crossings of pieces (module doc).
 
@@ -1017,6 +1101,12 @@ def label_piece_junctions(
     measurement switch). label_options: `labelling.LabelOptions` (default: min_component 3; the depth range
     is set from depth_range_mm).
 
+    pair_min_px: with label_options' min_component 2, a component of two nodes is labelled only where one of them
+    lies within continue_px of the frame (frame_through on) and the two lie at least this far apart (decision 0143:
+    its one edge must hold samples beyond both crossings' pull).
+    frame_through: a family with one end at a node whose line leaves the camera frame (less frame_margin_px) within
+    continue_px past the node counts as running through it, in the X test and for the T's stems (decision 0143).
+
     Compiled (`_k_front`, `_k_nodes`, `_k_edge_inputs`, `_k_use`, `_k_anchors`, `_k_select`, `_k_write`: decision
     0092, "Time"); decision 0092's other measurement switches run only in the NumPy reference in the tests
     (decision 0097). debug: filled with the nodes' positions `xy` and labels `labels` (UNLABELLED where none).
@@ -1042,12 +1132,13 @@ def label_piece_junctions(
     # 2–3. nodes, ends associated by position, only X's
     if continue_px is None:
         continue_px = reach_px
+    fw, fh = (float(model.procam.camera.width), float(model.procam.camera.height)) if frame_through else (0.0, 0.0)
     xy, node_end, n_assoc, n_not = _k_nodes(E, U, fe, h, c, float(merge_px), float(reach_px), float(lateral_px), float(continue_px),
-                                            bool(x_both and not t_nodes), q, fam, *grid)
+                                            bool(x_both and not t_nodes), q, fam, *grid, fw, fh, float(frame_margin_px))
     if t_nodes:  # decision 0098: which family stops at each node
         from reconstruction.t_nodes import rim_ts, t_labels, t_node_stems, through_end_samples, through_kept, through_refit, x_use
 
-        stem = t_node_stems(xy, node_end, E, U, fe, float(lateral_px), float(continue_px), q, fam, *grid)
+        stem = t_node_stems(xy, node_end, E, U, fe, float(lateral_px), float(continue_px), q, fam, *grid, fw, fh, float(frame_margin_px))
     n_nodes = len(xy)
     stats["nodes"] = n_nodes
     if n_assoc >= 0:
@@ -1081,6 +1172,15 @@ def label_piece_junctions(
         sub, renum, ek = x_use(n_nodes, edges, np.ascontiguousarray(eseg, np.int64), cand, labelled, stem_g, int(lo.min_component))
     else:
         sub, renum, ek = _k_use(n_nodes, edges, np.ascontiguousarray(eseg, np.int64), cand, labelled, int(lo.min_component))
+    if len(sub) and int(lo.min_component) <= 2:
+        # decision 0143: a component of two nodes only where the frame cut it (a node within continue_px of the
+        # frame's edge, less the margin) and its nodes lie pair_min_px apart
+        if fw > 0:
+            d_edge = np.minimum(np.minimum(xy[:, 0], xy[:, 1]), np.minimum(fw - 1.0 - xy[:, 0], fh - 1.0 - xy[:, 1])) - float(frame_margin_px)
+            at_frame = d_edge <= float(continue_px)
+        else:
+            at_frame = np.zeros(n_nodes, bool)
+        sub, renum, ek = _short_pairs_out(sub, renum, ek, edges, np.ascontiguousarray(xy, np.float64), float(pair_min_px), at_frame)
     stats["nodes_used"] = int(len(sub))
     if len(sub) == 0:
         return stats

@@ -42,11 +42,11 @@ import numpy as np
 
 from reconstruction._jit import njit
 from reconstruction._label_kernels import _union_find_root
-from reconstruction.piece_junctions import _k_continues, _k_node_ends
+from reconstruction.piece_junctions import _k_continues, _k_leaves_frame, _k_node_ends
 
 
 @njit
-def t_node_stems(xy, node_end, E, U, fe, lateral, continue_px, q, fam, x0, y0, cell, gw, gh, start, items, pos_of):
+def t_node_stems(xy, node_end, E, U, fe, lateral, continue_px, q, fam, x0, y0, cell, gw, gh, start, items, pos_of, fw=0.0, fh=0.0, margin=0.0):
     """The stem of each node: 0 or 1 (family 1 or 2) where that family's line stops at the node, −1 where
     both families' lines go through it (or the node has no ends).
 
@@ -56,7 +56,8 @@ def t_node_stems(xy, node_end, E, U, fe, lateral, continue_px, q, fam, x0, y0, c
     far past the node a one-sided family's line must show a trace sample to go through
     (`piece_junctions._k_continues`); q, fam and the frame's bucket grid of the samples as `_k_nodes` takes
     them. A family goes through where its ends lie on both sides of the node (decision 0092's two-sided
-    rule: ne ≥ 2 and |Σ outward| ≤ ne − 1.5) or its line shows a sample past the node."""
+    rule: ne ≥ 2 and |Σ outward| ≤ ne − 1.5) or its line shows a sample past the node, or (decision 0143; fw > 0) its
+    one end's line leaves the frame fw × fh (less margin px) within continue_px past the node."""
     K = xy.shape[0]
     stem = np.full(K, -1, np.int64)
     has, sx, sy, ne, off = _k_node_ends(node_end, E, U, fe, xy, lateral)
@@ -90,7 +91,7 @@ def t_node_stems(xy, node_end, E, U, fe, lateral, continue_px, q, fam, x0, y0, c
     else:
         cont = np.zeros(n_q, np.bool_)
     for m in range(n_q):
-        if not cont[m]:
+        if not cont[m] and not (ne[kq[m], fq[m] - 1] == 1 and _k_leaves_frame(pts[m, 0], pts[m, 1], dn[m, 0], dn[m, 1], continue_px, fw, fh, margin)):
             stem[kq[m]] = fq[m] - 1
     return stem
 

@@ -203,7 +203,8 @@ def test_compiled_path_equals_the_reference_bit_for_bit(which, hole, small_scene
 
     L.label_piece_junctions = spy
     try:
-        _samples(s, model, obs, labels, t_nodes=False)  # the reference has no T nodes (decision 0098)
+        # the reference has no T nodes (decision 0098) and no nodes at the frame (decision 0143)
+        _samples(s, model, obs, labels, t_nodes=False, frame_through=False)
     finally:
         L.label_piece_junctions = orig
     assert len(calls) == 1
@@ -211,7 +212,7 @@ def test_compiled_path_equals_the_reference_bit_for_bit(which, hole, small_scene
     out = []
     for f in (label_piece_junctions, _label_piece_junctions_reference):
         aa = [x.copy() if isinstance(x, np.ndarray) else x for x in a]
-        kk = {key: (v.copy() if isinstance(v, np.ndarray) else v) for key, v in k.items() if key != "t_nodes" or f is label_piece_junctions}
+        kk = {key: (v.copy() if isinstance(v, np.ndarray) else v) for key, v in k.items() if key not in ("t_nodes", "frame_through", "frame_margin_px", "pair_min_px") or f is label_piece_junctions}
         st = f(*aa, **kk)
         out.append((aa[6], aa[7], kk["q_out"], st))
     (i0, s0, q0, st0), (i1, s1, q1, st1) = out
