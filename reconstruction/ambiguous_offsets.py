@@ -25,6 +25,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from reconstruction._jit import njit
 from reconstruction.geometry import depth_cam, epipolar_lines, triangulate_rays
 from reconstruction.rigmodel import UNLABELLED
 
@@ -58,6 +59,30 @@ class AmbiguousOffset:
         return self.rig_miss_px < self.decide_px or self.median_size < self.n_min
 
 
+@njit
+def _offset_scores(best, lines, comp, n_c, xy_junction, index_min, index_max, fx, offs, cap2):
+    """Per component (comp (n,) in 0..n_c−1) and offset offs (K, 2): the sum over its junctions of the capped squared
+    epipolar distance (projector px²) of label best + offset (cap2 outside the pattern), and how many are inside."""
+    n = best.shape[0]
+    K = offs.shape[0]
+    score = np.zeros((n_c, K))
+    n_in = np.zeros((n_c, K))
+    for a in range(n):
+        c = comp[a]
+        for k in range(K):
+            i = best[a, 0] + offs[k, 0]
+            j = best[a, 1] + offs[k, 1]
+            if i < index_min or i > index_max or j < index_min or j > index_max:
+                score[c, k] += cap2
+                continue
+            x = xy_junction[i - index_min, j - index_min, 0]
+            y = xy_junction[i - index_min, j - index_min, 1]
+            r = (lines[a, 0] * x + lines[a, 1] * y + lines[a, 2]) * fx
+            score[c, k] += min(r * r, cap2)
+            n_in[c, k] += 1.0
+    return score, n_in
+
+
 def competing_offsets(model, xy_cam: np.ndarray, best: np.ndarray, component: np.ndarray, *, depth_range_mm: tuple[float, float],
                       cap_px: float = 1.0, max_offset: int = 12, min_inside: float = 0.5) -> dict:
     """Per component with best-offset labels (best (M, 2), UNLABELLED elsewhere): its runner-up offset among
@@ -76,34 +101,36 @@ def competing_offsets(model, xy_cam: np.ndarray, best: np.ndarray, component: np
     size = np.bincount(inv, minlength=n_c).astype(np.float64)
     offs = np.array([(a, b) for a in range(-max_offset, max_offset + 1) for b in range(-max_offset, max_offset + 1)], np.int64)
     cap2 = float(cap_px) ** 2
-    lb = best[sel][:, None, :] + offs[None, :, :]  # (n, K, 2)
-    inside = (lb >= model.index_min).all(2) & (lb <= model.index_max).all(2)
-    ii = np.clip(lb[..., 0], model.index_min, model.index_max)
-    jj = np.clip(lb[..., 1], model.index_min, model.index_max)
-    xyj = model.junction_xy(ii.ravel(), jj.ravel()).reshape(len(sel), len(offs), 2)
-    r = np.abs(lines[:, None, 0] * xyj[..., 0] + lines[:, None, 1] * xyj[..., 1] + lines[:, 2][:, None]) * model.fx_proj
-    r2 = np.where(inside, np.minimum(r * r, cap2), cap2)
-    score = np.zeros((n_c, len(offs)))
-    n_in = np.zeros((n_c, len(offs)))
-    for k in range(len(offs)):
-        score[:, k] = np.bincount(inv, weights=r2[:, k], minlength=n_c)
-        n_in[:, k] = np.bincount(inv, weights=inside[:, k], minlength=n_c)
-    score /= size[:, None]
+    order = np.argsort(inv, kind="stable")
+    starts = np.searchsorted(inv[order], np.arange(n_c))
+    b_sel = np.ascontiguousarray(best[sel], np.int64)
+    score, n_in = _offset_scores(b_sel, np.ascontiguousarray(lines, np.float64), inv.astype(np.int64), int(n_c), model.xy_junction,
+                                 int(model.index_min), int(model.index_max), float(model.fx_proj), offs, cap2)
+    score /= size[:, None]  # (n_c, K) capped mean squares
     k0 = int(np.flatnonzero((offs == 0).all(1))[0])
+    score_k = np.where(n_in >= min_inside * size[:, None], score, np.inf)
+    score_k[:, k0] = np.inf
+    n_try = 4  # the best few by score: the first with min_inside of the component in the working volume
+    top = np.argsort(score_k, axis=1, kind="stable")[:, :n_try]  # (n_c, n_try)
+    # every left-out junction under each of its component's candidates, triangulated in one call
+    kk = top[inv]  # (n, n_try)
+    lb = np.repeat(b_sel, n_try, axis=0) + offs[kk.ravel()]
+    inside = (lb >= model.index_min).all(1) & (lb <= model.index_max).all(1)
+    lb = np.clip(lb, model.index_min, model.index_max)
+    p, _ = triangulate_rays(procam, np.repeat(xy_cam[sel], n_try, axis=0), model.junction_xy(lb[:, 0], lb[:, 1]))
+    z = depth_cam(procam, p)
     lo, hi = depth_range_mm
+    good = np.isfinite(z) & (z >= lo) & (z <= hi) & inside
+    frac = np.add.reduceat(good.reshape(-1, n_try)[order].astype(np.float64), starts, axis=0) / size[:, None]  # (n_c, n_try)
+    passing = (frac >= min_inside) & np.isfinite(np.take_along_axis(score_k, top, axis=1))
+    has = passing.any(1)
+    first = np.argmax(passing, axis=1)
+    chosen = top[np.arange(n_c), first]
     for c in range(n_c):
-        members = sel[inv == c]
-        rows = np.flatnonzero(inv == c)
-        cand = [k for k in np.argsort(score[c], kind="stable") if k != k0 and n_in[c, k] >= min_inside * size[c]]
-        chosen = None
-        for k in cand[:4]:  # the best few by score: the first with min_inside of the component in the working volume
-            p, _ = triangulate_rays(procam, xy_cam[members], xyj[rows, k])
-            z = depth_cam(procam, p)
-            if np.mean(np.isfinite(z) & (z >= lo) & (z <= hi) & inside[rows, k]) >= min_inside:
-                chosen = k
-                break
-        out[int(comp_ids[c])] = (members, None if chosen is None else offs[chosen].copy(), math.sqrt(score[c, k0]),
-                                 math.nan if chosen is None else math.sqrt(score[c, chosen]))
+        members = sel[order[starts[c]:starts[c] + int(size[c])]]
+        k = int(chosen[c])
+        out[int(comp_ids[c])] = (members, offs[k].copy() if has[c] else None, math.sqrt(score[c, k0]),
+                                 math.sqrt(score[c, k]) if has[c] else math.nan)
     return out
 
 
