@@ -173,9 +173,12 @@ def ambiguity_report(model, pattern, xy_cam: np.ndarray, best: np.ndarray, compo
                                    float(m.margin_px), decide, n_min)
 
 
-def ambiguity_warning(n_junctions: int, n_ambiguous: int, main: AmbiguousOffset | None) -> str:
-    """The frame's sentence for a share of junctions left out as ambiguous (see `pipeline.ambiguous_share_warning`)."""
+def ambiguity_warning(n_junctions: int, n_ambiguous: int, main: AmbiguousOffset | None, n_open: int | None = None) -> str:
+    """The frame's sentence for a share of junctions left out as ambiguous (see `pipeline.ambiguous_share_warning`);
+    n_open: how many of them have no point nearby in the result."""
     head = f"{n_ambiguous} of {n_junctions} junctions ({100.0 * n_ambiguous / max(n_junctions, 1):.0f} %) were left out as ambiguous"
+    if n_open is not None:
+        head += f" ({n_open} with no point nearby)"
     if main is None:
         return head + " (see stats: junctions_left_out)"
     a, b = main.vector

@@ -121,6 +121,29 @@ def test_warning_says_which_offset_and_whether_the_rig_explains_it():
     assert ambiguity_warning(10, 3, None).endswith("(see stats: junctions_left_out)")
 
 
+def test_no_warning_where_the_later_steps_put_points_on_the_left_out_junctions():
+    from reconstruction.labelling import Labels
+    from reconstruction.pipeline import ReconstructOptions, ambiguous_share_warning
+
+    procam = _rig(7.5)
+    model = rig_model(procam, GRID, (600.0, 1300.0))
+    ii, jj = (a.ravel() for a in np.meshgrid(np.arange(-4, 5), np.arange(-4, 5), indexing="ij"))
+    xy_cam, _ = _seen(procam, model, ii, jj, 900.0)
+    q = procam.camera.normalised_to_pixels(xy_cam)
+    n = len(ii)
+    best = np.column_stack([ii, jj]).astype(np.int64)
+    lab = Labels(np.full((n, 2), UNLABELLED, np.int64), np.full(n, np.nan), np.zeros(n, np.int64),
+                 {"junctions_left_out": {"ambiguous": n}}, None, best)
+    o = ReconstructOptions(depth_min_mm=600.0, depth_max_mm=1300.0)
+    stats: dict = {}
+    assert ambiguous_share_warning(n, lab, model, xy_cam, o, stats, q, q + 0.2) is None  # every one has points
+    assert stats["ambiguous_unrecovered"] == 0
+    w = ambiguous_share_warning(n, lab, model, xy_cam, o, stats, q, q[:10] + 0.2)  # 71 of 81 without
+    assert w.startswith(f"{n} of {n} junctions (100 %) were left out as ambiguous ({n - 10} with no point nearby)")
+    assert stats["ambiguous_offset"]["vector"] == list(canonical(stats["ambiguous_offset"]["vector"]))
+    assert ambiguous_share_warning(n, lab, model, xy_cam, replace(o, ambiguous_share_warning=1.01), {}, q, q[:10]) is None
+
+
 def test_unseen_178_warns_with_the_offset_along_the_epipolar_lines():
     import cv2
 
