@@ -153,6 +153,7 @@ class Labels:
     stats: dict = field(default_factory=dict)
     ambiguous_best: np.ndarray | None = None  # (M, 2): junctions of components of at least 3 left out as ambiguous,
     # their labels under the component's best offset (UNLABELLED elsewhere; decision 0141's guard); None: not recorded
+    ambiguous_labels: np.ndarray | None = None  # (M, 2): the same for components of any size (decision 0147's report)
 
 
 def clean_edges(n_junctions: int, edges: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
@@ -428,6 +429,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     M = len(obs.q_junction)
     labels = np.full((M, 2), UNLABELLED, np.int64)
     amb_best = np.full((M, 2), UNLABELLED, np.int64)  # ambiguous components' best-offset labels (decision 0141)
+    amb_all = np.full((M, 2), UNLABELLED, np.int64)  # the same for every size (decision 0147's report)
     residual = np.full(M, np.nan)
     stats = {"components": 0, "components_labelled": 0, "ambiguous": 0, "out_of_pattern": 0, "out_of_depth_range": 0,
              "too_small": 0, "components_split": 0, "contradicting_edges": 0, "junctions_left_out": {}}
@@ -608,6 +610,8 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
                 left[ch.reason] += m
                 if ch.reason == "ambiguous":
                     stats["ambiguous"] += 1
+                    if ch.labels is not None:
+                        amb_all[members] = ch.labels  # decision 0147
                     if ch.labels is not None and m >= options.min_split_component:
                         amb_best[members] = ch.labels  # decision 0141
                 continue
@@ -647,7 +651,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             next_id += 1
             work.append((outl[g], rounds + 1, -1, True))
     stats["junctions_left_out"] = left
-    return Labels(labels, residual, component, stats, amb_best)
+    return Labels(labels, residual, component, stats, amb_best, amb_all)
 
 
 def solve_base_point(m: np.ndarray, b: np.ndarray, h: np.ndarray, v: np.ndarray) -> np.ndarray:

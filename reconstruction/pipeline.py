@@ -51,7 +51,13 @@ class ReconstructOptions:
     decision 0092's `trace.piece_junctions` is off with the paper labeller too). traces_in_extraction: the line
     samples' trace pieces and the cut-profile measure along them, which need no label, are built in the extraction
     stage (`extract_frame`, decision 0140) so that the two stages' threads carry similar loads; off: in the label
-    stage, as before. The outputs are the same either way."""
+    stage, as before. The outputs are the same either way. ambiguous_share_warning: when at least this share of the
+    frame's junctions is left out as ambiguous (and fewer than the half `left_out_warning` names), warn and name the
+    lattice offset the left-out components competed with and whether the rig's geometry explains it (decision 0147;
+    0.15: a frame losing more than 1 − the 85 % coverage target; 1 or more: off), when at least
+    ambiguous_unrecovered_share of those junctions have no point within a quarter junction step (the later steps
+    label many of their lines: unseen seeds 129, 182 lost 2 % and 0 %, 156, 178, 193 44 %, 38 %, 38 %). Reporting
+    only: points unchanged."""
 
     labeller: Literal["epipolar", "paper"] = "epipolar"
     depth_min_mm: float = 100.0
@@ -65,6 +71,8 @@ class ReconstructOptions:
     border: BorderFillOptions = BorderFillOptions()  # decision 0104: a labelled end to the image border (with `crossing` on)
     sheet_precision: SheetPrecisionOptions = SheetPrecisionOptions()  # decision 0131: samples on sheets along the epipolar lines
     traces_in_extraction: bool = True  # decision 0140: the trace pieces (no label in them) built by extract_frame; outputs identical either way
+    ambiguous_share_warning: float = 0.15  # decision 0147: warn and name the competing lattice offset from this share left out as ambiguous
+    ambiguous_unrecovered_share: float = 0.25  # decision 0147: ... when this share of them has no point nearby
 
     def __post_init__(self) -> None:
         if self.labeller not in ("epipolar", "paper"):
@@ -321,6 +329,46 @@ def left_out_warning(n_junctions: int, n_labelled: int, left_out: dict, margin) 
     return head + " (see stats: junctions_left_out)"
 
 
+def ambiguous_share_warning(n_junctions: int, lab: Labels, model: RigModel, xy_cam_j, options: ReconstructOptions, stats: dict,
+                            q_junction=None, q_points=None) -> str | None:
+    """Decision 0147: when at least `options.ambiguous_share_warning` of the frame's junctions were left out as ambiguous,
+    and at least `options.ambiguous_unrecovered_share` of those have no point of the result within a quarter junction
+    step (q_junction (M, 2) the junctions', q_points (N, 2) the points' camera pixels; the later steps often label the
+    lines through them), the lattice offset their components competed with and the rig's miss for it
+    (`ambiguous_offsets`); writes stats["ambiguous_offsets"] (left-out junctions per competing vector),
+    stats["ambiguous_unrecovered"] and stats["ambiguous_offset"] (the main one's measures). None otherwise, with the
+    paper labeller or without recorded labels."""
+    n_amb = int(lab.stats.get("junctions_left_out", {}).get("ambiguous", 0))
+    if n_junctions == 0 or n_amb < options.ambiguous_share_warning * n_junctions or lab.ambiguous_labels is None:
+        return None
+    k = np.flatnonzero(lab.ambiguous_labels[:, 0] != UNLABELLED)
+    if q_junction is not None and q_points is not None and len(k):
+        from scipy.spatial import cKDTree
+
+        if len(q_points):
+            d, _ = cKDTree(np.asarray(q_points, np.float64)).query(np.asarray(q_junction, np.float64)[k],
+                                                                     distance_upper_bound=0.25 * model.junction_step_cam_px)
+            n_open = int((~np.isfinite(d)).sum())
+        else:
+            n_open = len(k)
+        stats["ambiguous_unrecovered"] = n_open
+        if n_open < options.ambiguous_unrecovered_share * len(k):
+            return None
+    from reconstruction.ambiguous_offsets import ambiguity_report, ambiguity_warning
+
+    lo = options.label
+    counts, main = ambiguity_report(model, None, xy_cam_j, lab.ambiguous_labels, lab.component,
+                                    depth_range_mm=(options.depth_min_mm, options.depth_max_mm), noise_floor_px=lo.noise_floor_px,
+                                    min_rms_ratio=lo.min_rms_ratio, chi2=lo.ambiguity_chi2, cap_px=lo.residual_cap_px)
+    stats["ambiguous_offsets"] = counts
+    if main is not None:
+        stats["ambiguous_offset"] = {"vector": list(main.vector), "junctions": main.junctions, "components": main.components,
+                                     "median_size": main.median_size, "rms_best_px": main.rms_best, "rms_runner_up_px": main.rms_runner_up,
+                                     "rig_miss_px": main.rig_miss_px, "decide_px": main.decide_px, "n_min": main.n_min,
+                                     "geometric": bool(main.geometric)}
+    return ambiguity_warning(n_junctions, n_amb, main, stats.get("ambiguous_unrecovered"))
+
+
 def _triangulate(
     image, obs: GridObservation, lab: Labels, sl: SampleLabels | None, model: RigModel, xy_cam_j, options: ReconstructOptions,
     cp: CrossingPoints | None = None,
@@ -430,6 +478,10 @@ def _triangulate(
         w = left_out_warning(M, n_j, lab.stats.get("junctions_left_out", {}), margin)
         if w:
             warnings.append(w)
+        else:
+            w = ambiguous_share_warning(M, lab, model, xy_cam_j, options, stats, obs.q_junction, out_q[:n_keep])
+            if w:
+                warnings.append(w)
     if margin.verdict == "ill-posed":
         # The same measure and threshold as `rig check` (placement.labelling_margin, decision 0065): below the
         # runner-up miss the labeller needs with this frame's epipolar floor (decision 0130).

@@ -84,6 +84,8 @@ def labelling_margin(
     junction_samples: int = 9,
     depth_samples: int = 7,
     decide_px: float = DECIDE_PX,
+    offsets=None,
+    junction_xy=None,
 ) -> LabellingMargin:
     """The labelling margin (see the module docstring). Pure geometry from the calibration; no image needed.
 
@@ -95,18 +97,23 @@ def labelling_margin(
     benchmark's 100 seeds "ill-posed" instead of 27, and 27 of the 30 more reach 85 % coverage with under 0.5 % of
     their points more than 1 % off: the measure is a worst case over single points, while a whole component moved
     by such a vector mostly leaves the working volume. decide_px: the
-    verdict's "ill-posed" threshold (`LabellingMargin.decide_px`; `rig check` passes its floor's).
+    verdict's "ill-posed" threshold (`LabellingMargin.decide_px`; `rig check` passes its floor's). offsets: search these
+    (Δi, Δj) only instead of |Δ| ≤ max_offset (decision 0147: the rig's miss for the lattice vector a frame's ambiguous
+    components competed with, `ambiguous_offsets.ambiguity_report`).
     """
     idx = pattern.indices
     pick = idx[np.linspace(0, len(idx) - 1, min(junction_samples, len(idx))).round().astype(int)]
     ii, jj = (a.ravel() for a in np.meshgrid(pick, pick, indexing="ij"))
     proj = procam.projector
-    xy_j = proj.pixels_to_normalised(pattern.junction_uv(ii, jj))
+    xy_of = (lambda i, j: proj.pixels_to_normalised(pattern.junction_uv(i, j))) if junction_xy is None else junction_xy
+    xy_j = xy_of(ii, jj)
     # Surface points along each junction's projector ray, at depths across the working volume.
     lo, hi = depth_range_mm
     best = LabellingMargin(float("inf"), None, None, float(decide_px))
     t = procam.t_proj_cam
     offs = np.array([(a, b) for a in range(-max_offset, max_offset + 1) for b in range(-max_offset, max_offset + 1) if (a, b) != (0, 0)])
+    if offsets is not None:
+        offs = np.asarray(offsets, np.int64).reshape(-1, 2)
     for z_cam in np.linspace(lo, hi, depth_samples):
         # Put the surface point on the junction's projector ray at camera depth z_cam.
         e = np.column_stack([xy_j, np.ones(len(xy_j))])
@@ -129,7 +136,7 @@ def labelling_margin(
         if not inside.any():
             continue
         rows, cols = np.nonzero(inside)
-        xy_w = proj.pixels_to_normalised(pattern.junction_uv(i2[rows, cols], j2[rows, cols]))
+        xy_w = xy_of(i2[rows, cols], j2[rows, cols])
         ew = np.column_stack([xy_w, np.ones(len(xy_w))])
         d_px = np.abs(np.einsum("ij,ij->i", lines[rows], ew)) / norm[rows] * proj.fx
         p_w, _ = triangulate_rays(procam, xy_cam[rows], xy_w)
