@@ -17,8 +17,8 @@ The working volume is the scene's depth range (`drivers.sim.presets.depth_range`
 gives every scene's points, coverage (`benchmarks._common.coverage_lines`), the relative 3-D error (median, p99,
 share > 1 %) and the pipeline's warnings: "ill-posed" when the rig's labelling margin is under the 0.15 projector px a runner-up offset must miss by (decision 0130),
 "few junctions" when lines were found but their crossings mostly not, "left out" when most junctions could not be
-labelled. A scene with no usable grid (e.g. a grid seen edge on)
-shows up as "no points" with its warning. Writes benchmarks/results/unseen.md.
+labelled or a share of them was left out as ambiguous (decision 0147), "no grid" when no line crossing was found (e.g. a
+grid seen edge on; such a scene shows up as "no points"). Writes benchmarks/results/unseen.md.
 """
 
 from __future__ import annotations
@@ -105,7 +105,8 @@ def run(seeds) -> list[dict]:
         rel = relative_errors(res.points_proj, res.q_cam, truth) * 100
         warn = ("ill-posed" if any("ill-posed" in w for w in res.warnings) else
                 "few junctions" if any("line samples but only" in w for w in res.warnings) else
-                "left out" if any("could not label" in w or "left out as ambiguous" in w for w in res.warnings) else "")
+                "left out" if any("could not label" in w or "left out as ambiguous" in w for w in res.warnings) else
+                "no grid" if any("no usable grid" in w for w in res.warnings) else "")
         row = {"seed": seed, "rig": rig, "objects": len(scene.objects) - 1, "pitch": pattern.pitch_px,
                "angles": f"{pattern.alpha1_deg:.0f}/{pattern.alpha2_deg:.0f}", "noise": noise, "points": res.n_points,
                "coverage": 100 * coverage_lines(truth, pattern, res.q_cam),
