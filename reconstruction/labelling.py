@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 from reconstruction import _ambiguity_kernels as _ak
 from reconstruction import _label_kernels as _k
 from reconstruction.ambiguity_guard import Guard
+from reconstruction.seed_brightness import drop_seeds_off_brightness
 from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.depth_range_labels import label_pieces as label_depth_range_pieces
 from reconstruction.edge_cuts import edge_misfits
@@ -850,6 +851,10 @@ class TraceOptions:
         each other (samples moved onto the chord between the anchors, fill_anchor samples inside the ends).
     max_ridge_step: cut a trace where the image brightness at consecutive samples changes by more than
         this share (an occluding edge where another surface's line continues this one); 0: off.
+    seed_brightness: a labelled junction's seeds on a trace piece whose median ridge brightness differs from the
+        median over all the junction's seeds by more than max_ridge_step (of the larger) are taken back before
+        the seeds spread: the piece lies beyond a depth edge at the junction, on another surface whose line
+        continues the junction's in the image (decision 0146, `reconstruction.seed_brightness`).
     continue_lines: carry a labelled piece's index to the pieces that continue its line across crossings
         where no junction was labelled (`reconstruction.continuation`, decision 0066); continue_reach: the
         longest gap, in junction steps; continue_lateral_px: the facing ends' largest sideways offset
@@ -925,6 +930,7 @@ class TraceOptions:
     cross_trim_sigma: float = 1.0
     fill_gaps: bool = True
     max_ridge_step: float = 0.15
+    seed_brightness: bool = True  # decision 0146: a junction's seeds on a piece off its seeds' brightness are taken back
     fill_anchor: int = 3
     continue_lines: bool = True
     continue_reach: float = 0.6
@@ -1451,6 +1457,10 @@ def label_samples(
         else:
             order, piece, ts, tangent, sid = tp.order, tp.piece, tp.ts, tp.tangent, tp.sid
         stats["traces"] = int(piece[-1]) + 1
+        if options.seed_brightness and ridge is not None and options.max_ridge_step > 0 and len(ridge) == P:
+            # a junction's seeds on a piece of another surface, beyond a depth edge at the junction (decision 0146)
+            stats["seeds_off_brightness"] = int(drop_seeds_off_brightness(sid, piece, seed, seed_jid, ridge,
+                                                                          float(options.max_ridge_step), UNLABELLED))
         got, n_seeded, n_conflicting = _k.spread_seeds(sid, piece, ts, seed, seed_jid, index, UNLABELLED)
         stats["traces_seeded"] = int(n_seeded)
         stats["traces_conflicting"] = int(n_conflicting)
