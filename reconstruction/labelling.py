@@ -852,7 +852,7 @@ class TraceOptions:
     max_ridge_step: cut a trace where the image brightness at consecutive samples changes by more than
         this share (an occluding edge where another surface's line continues this one); 0: off.
     seed_brightness: a labelled junction's seeds on a trace piece whose median ridge brightness differs from the
-        median over all the junction's seeds by more than max_ridge_step (of the larger) are taken back before
+        median over all the junction's seeds by more than seed_brightness_share of the larger are taken back before
         the seeds spread: the piece lies beyond a depth edge at the junction, on another surface whose line
         continues the junction's in the image (decision 0146, `reconstruction.seed_brightness`).
     continue_lines: carry a labelled piece's index to the pieces that continue its line across crossings
@@ -931,6 +931,7 @@ class TraceOptions:
     fill_gaps: bool = True
     max_ridge_step: float = 0.15
     seed_brightness: bool = True  # decision 0146: a junction's seeds on a piece off its seeds' brightness are taken back
+    seed_brightness_share: float = 0.25  # decision 0146: how far off (share of the larger median)
     fill_anchor: int = 3
     continue_lines: bool = True
     continue_reach: float = 0.6
@@ -1457,10 +1458,10 @@ def label_samples(
         else:
             order, piece, ts, tangent, sid = tp.order, tp.piece, tp.ts, tp.tangent, tp.sid
         stats["traces"] = int(piece[-1]) + 1
-        if options.seed_brightness and ridge is not None and options.max_ridge_step > 0 and len(ridge) == P:
+        if options.seed_brightness and ridge is not None and len(ridge) == P:
             # a junction's seeds on a piece of another surface, beyond a depth edge at the junction (decision 0146)
-            stats["seeds_off_brightness"] = int(drop_seeds_off_brightness(sid, piece, seed, seed_jid, ridge,
-                                                                          float(options.max_ridge_step), UNLABELLED))
+            stats["seeds_off_brightness"] = int(drop_seeds_off_brightness(sid, piece, fam, seed, seed_jid, ridge,
+                                                                          float(options.seed_brightness_share), UNLABELLED))
         got, n_seeded, n_conflicting = _k.spread_seeds(sid, piece, ts, seed, seed_jid, index, UNLABELLED)
         stats["traces_seeded"] = int(n_seeded)
         stats["traces_conflicting"] = int(n_conflicting)

@@ -9,11 +9,16 @@ takes the junction's index, one or several lattice vectors off, and later steps 
 copy it to the neighbouring lines of that surface.
 
 The two surfaces return different light: the ridge brightness of a line depends on the surface's distance,
-orientation and albedo, and is the same along a line on one surface (step 7's trace cut uses it between two
-consecutive samples). Here a seeded piece whose median ridge brightness differs from the median over all of its
-junction's seeds by more than step 7's share (`TraceOptions.max_ridge_step` of the larger of the two) is on
-another surface than most of the junction's seeds: those seeds are taken back before the seeds spread along
-the pieces. A piece on the junction's own surface keeps them.
+orientation and albedo, and changes little along a line on one surface (step 7's trace cut uses it between two
+consecutive samples). Here the seeds a junction puts on one trace piece are taken back when their median ridge
+brightness differs from the median over all that junction's seeds of the same family (its line on both sides of
+the crossing; the two families' ridges differ by their width in the image, so they are not pooled) by more than
+`TraceOptions.seed_brightness_share` (0.25) of the larger of the two. All the seeds lie within the junction radius
+of one crossing, so shading and distance hardly change between them; the crossing's own light and the sampling
+of a narrow ridge do, more than between two consecutive samples (step 7's 0.15 took back 2.3 % of the right seeds
+on the bench's tabletop scene with the piece's median, decision 0146's first variant). A piece on the junction's
+own surface keeps them; the others are not seeded by that junction (another junction, or a later step, may
+label them).
 """
 
 from __future__ import annotations
@@ -47,51 +52,27 @@ def _group_medians(key, val, n_groups):
     return med
 
 
-@njit
-def drop_seeds_off_brightness(sid, piece, seed, seed_jid, ridge, max_step, unlabelled):
-    """Take back (seed → unlabelled, seed_jid → −1, in place) the seeds of a junction on a trace piece whose
-    median ridge brightness differs from the median over all that junction's seeds by more than max_step × the
-    larger of the two. sid (n,): the kept samples in trace order; piece (n,): their piece. Returns the number of
-    seeds taken back."""
-    n = sid.shape[0]
-    if n == 0:
+def drop_seeds_off_brightness(sid, piece, fam, seed, seed_jid, ridge, max_step, unlabelled):
+    """Take back (seed → unlabelled, seed_jid → −1, in place) a junction's seeds of one family on one trace piece
+    when their median ridge brightness differs from the median over all that junction's seeds of that family by
+    more than max_step × the larger of the two. sid (n,): the kept samples in trace order; piece (n,): their piece;
+    fam (P,): every sample's family (1, 2). Returns the number of seeds taken back."""
+    sid = np.asarray(sid)
+    k = np.flatnonzero((seed[sid] != unlabelled) & (seed_jid[sid] >= 0))
+    if len(k) == 0:
         return 0
-    n_p = 0
-    n_j = 0
-    n_s = 0
-    for k in range(n):
-        if piece[k] + 1 > n_p:
-            n_p = piece[k] + 1
-        s = sid[k]
-        if seed[s] != unlabelled and seed_jid[s] >= 0:
-            n_s += 1
-            if seed_jid[s] + 1 > n_j:
-                n_j = seed_jid[s] + 1
-    if n_s == 0:
-        return 0
-    rv = np.empty(n, np.float64)
-    for k in range(n):
-        rv[k] = ridge[sid[k]]
-    piece_med = _group_medians(piece, rv, n_p)
-    jk = np.empty(n_s, np.intp)
-    jv = np.empty(n_s, np.float64)
-    m = 0
-    for k in range(n):
-        s = sid[k]
-        if seed[s] != unlabelled and seed_jid[s] >= 0:
-            jk[m] = seed_jid[s]
-            jv[m] = rv[k]
-            m += 1
-    junction_med = _group_medians(jk, jv, n_j)
-    dropped = 0
-    for k in range(n):
-        s = sid[k]
-        if seed[s] == unlabelled or seed_jid[s] < 0:
-            continue
-        a = piece_med[piece[k]]
-        b = junction_med[seed_jid[s]]
-        if abs(a - b) > max_step * max(a, b):
-            seed[s] = unlabelled
-            seed_jid[s] = -1
-            dropped += 1
-    return dropped
+    s = sid[k]
+    g_line = 2 * seed_jid[s] + (fam[s] == 2)  # the junction's line of the sample's family
+    r = np.asarray(ridge, np.float64)[s]
+    _, g_line = np.unique(g_line, return_inverse=True)
+    pair = g_line.astype(np.int64) * (int(piece.max()) + 1) + piece[k]
+    _, g_pair = np.unique(pair, return_inverse=True)
+    m_line = _group_medians(g_line.astype(np.intp), r, int(g_line.max()) + 1)
+    m_pair = _group_medians(g_pair.astype(np.intp), r, int(g_pair.max()) + 1)
+    a = m_pair[g_pair]
+    b = m_line[g_line]
+    off = np.abs(a - b) > max_step * np.maximum(a, b)
+    drop = s[off]
+    seed[drop] = unlabelled
+    seed_jid[drop] = -1
+    return int(len(drop))
