@@ -52,27 +52,80 @@ def _group_medians(key, val, n_groups):
     return med
 
 
+@njit
+def _median_sorted(v, a, b):
+    m = b - a
+    return v[a + m // 2] if m % 2 else 0.5 * (v[a + m // 2 - 1] + v[a + m // 2])
+
+
+@njit
 def drop_seeds_off_brightness(sid, piece, fam, seed, seed_jid, ridge, max_step, unlabelled):
     """Take back (seed → unlabelled, seed_jid → −1, in place) a junction's seeds of one family on one trace piece
     when their median ridge brightness differs from the median over all that junction's seeds of that family by
-    more than max_step × the larger of the two. sid (n,): the kept samples in trace order; piece (n,): their piece;
-    fam (P,): every sample's family (1, 2). Returns the number of seeds taken back."""
-    sid = np.asarray(sid)
-    k = np.flatnonzero((seed[sid] != unlabelled) & (seed_jid[sid] >= 0))
-    if len(k) == 0:
+    more than max_step × the larger of the two. sid (n,): the kept samples in trace order, each piece one run of
+    positions (as the trace kernels give them); piece (n,): their piece; fam (P,): every sample's family (1, 2).
+    Returns the number of seeds taken back."""
+    n = sid.shape[0]
+    n_j = 0
+    n_s = 0
+    for k in range(n):
+        s = sid[k]
+        if seed[s] != unlabelled and seed_jid[s] >= 0:
+            n_s += 1
+            if 2 * seed_jid[s] + 2 > n_j:
+                n_j = 2 * seed_jid[s] + 2
+    if n_s == 0:
         return 0
-    s = sid[k]
-    g_line = 2 * seed_jid[s] + (fam[s] == 2)  # the junction's line of the sample's family
-    r = np.asarray(ridge, np.float64)[s]
-    _, g_line = np.unique(g_line, return_inverse=True)
-    pair = g_line.astype(np.int64) * (int(piece.max()) + 1) + piece[k]
-    _, g_pair = np.unique(pair, return_inverse=True)
-    m_line = _group_medians(g_line.astype(np.intp), r, int(g_line.max()) + 1)
-    m_pair = _group_medians(g_pair.astype(np.intp), r, int(g_pair.max()) + 1)
-    a = m_pair[g_pair]
-    b = m_line[g_line]
-    off = np.abs(a - b) > max_step * np.maximum(a, b)
-    drop = s[off]
-    seed[drop] = unlabelled
-    seed_jid[drop] = -1
-    return int(len(drop))
+    # the median over each junction line's seeds (key 2·junction + [family 2])
+    jk = np.empty(n_s, np.intp)
+    jv = np.empty(n_s, np.float64)
+    m = 0
+    for k in range(n):
+        s = sid[k]
+        if seed[s] != unlabelled and seed_jid[s] >= 0:
+            jk[m] = 2 * seed_jid[s] + (1 if fam[s] == 2 else 0)
+            jv[m] = ridge[s]
+            m += 1
+    line_med = _group_medians(jk, jv, n_j)
+    # per piece (one run of positions), the median over each junction line's seeds on it
+    key = np.empty(n, np.intp)
+    val = np.empty(n, np.float64)
+    pos = np.empty(n, np.intp)
+    dropped = 0
+    a = 0
+    while a < n:
+        b = a + 1
+        while b < n and piece[b] == piece[a]:
+            b += 1
+        c = 0
+        for k in range(a, b):
+            s = sid[k]
+            if seed[s] != unlabelled and seed_jid[s] >= 0:
+                kk = 2 * seed_jid[s] + (1 if fam[s] == 2 else 0)
+                vv = float(ridge[s])
+                # insertion sort by (key, value); a piece holds few seeds
+                t = c
+                while t > 0 and (key[t - 1] > kk or (key[t - 1] == kk and val[t - 1] > vv)):
+                    key[t] = key[t - 1]
+                    val[t] = val[t - 1]
+                    pos[t] = pos[t - 1]
+                    t -= 1
+                key[t] = kk
+                val[t] = vv
+                pos[t] = s
+                c += 1
+        g0 = 0
+        while g0 < c:
+            g1 = g0 + 1
+            while g1 < c and key[g1] == key[g0]:
+                g1 += 1
+            pm = _median_sorted(val, g0, g1)
+            lm = line_med[key[g0]]
+            if abs(pm - lm) > max_step * max(pm, lm):
+                for t in range(g0, g1):
+                    seed[pos[t]] = unlabelled
+                    seed_jid[pos[t]] = -1
+                    dropped += 1
+            g0 = g1
+        a = b
+    return dropped
