@@ -931,7 +931,7 @@ class TraceOptions:
     fill_gaps: bool = True
     max_ridge_step: float = 0.15
     seed_brightness: bool = True  # decision 0146: a junction's seeds on a piece off its seeds' brightness are taken back
-    seed_brightness_share: float = 0.25  # decision 0146: how far off (share of the larger median)
+    seed_brightness_share: float = 0.2  # decision 0146: how far off (share of the larger median)
     fill_anchor: int = 3
     continue_lines: bool = True
     continue_reach: float = 0.6

@@ -13,12 +13,12 @@ orientation and albedo, and changes little along a line on one surface (step 7's
 consecutive samples). Here the seeds a junction puts on one trace piece are taken back when their median ridge
 brightness differs from the median over all that junction's seeds of the same family (its line on both sides of
 the crossing; the two families' ridges differ by their width in the image, so they are not pooled) by more than
-`TraceOptions.seed_brightness_share` (0.25) of the larger of the two. All the seeds lie within the junction radius
-of one crossing, so shading and distance hardly change between them; the crossing's own light and the sampling
-of a narrow ridge do, more than between two consecutive samples (step 7's 0.15 took back 2.3 % of the right seeds
-on the bench's tabletop scene with the piece's median, decision 0146's first variant). A piece on the junction's
-own surface keeps them; the others are not seeded by that junction (another junction, or a later step, may
-label them).
+`TraceOptions.seed_brightness_share` (0.2) of the larger of the two. All the seeds lie within the junction radius
+of one crossing, so shading and distance hardly change between them. The share is the smallest of 0.15, 0.2, 0.25
+and 0.3 that costs no bench scene more than 0.1 coverage points (0.15: tabletop −0.19); on the 8 bench scenes and
+16 unseen seeds other than 185, 0.2 is as accurate as 0.25 or more on every one (decision 0146). A piece on the
+junction's own surface keeps its seeds; the others are not seeded by that junction (another junction, or a later
+step, may label them). It never writes an index.
 """
 
 from __future__ import annotations
