@@ -6,8 +6,8 @@ taken back before the seeds spread.
   seeds, and the other family's, are judged against their own group only; unseeded samples are not read.
 - Unseen seed 185 (the scene where it was found, `benchmarks.unseen.draw_scene`): junctions at a silhouette seeded
   pieces of the dim surface beside it (ridge ~47 against ~127), 6 j-lines off, and the limb step 9e copied them to
-  the neighbouring lines (0.30 % of the points more than 1 % off, 156). With the check at least 10 % fewer points
-  are more than 1 % off (the test can fail).
+  the neighbouring lines (0.30 % of the points more than 1 % off, 156). With the check at most half as many (the
+  test can fail: without the check, or with the share 0.25).
 """
 
 from __future__ import annotations
@@ -58,8 +58,9 @@ def test_seeds_on_a_piece_off_the_junction_brightness_are_taken_back():
 
 
 def test_seed_185_seeds_across_a_silhouette_taken_back():
-    """Against simulated truth: with the check at least a tenth fewer points are more than 1 % off (measured 156 →
-    129), for at most 2 % of the points."""
+    """Against simulated truth: with the check at most half as many points are more than 1 % off (measured 156 →
+    10 with the share 0.2; 0.25 leaves 129: a 3-sample piece across the silhouette), for at most 2 % of the
+    points."""
     import cv2
 
     cv2.setNumThreads(1)
@@ -78,6 +79,6 @@ def test_seed_185_seeds_across_a_silhouette_taken_back():
         res = finish_frame(replace(frame, options=replace(o, trace=replace(o.trace, seed_brightness=on))))
         rel = relative_errors(res.points_proj, res.q_cam, truth)
         out[on] = (float((rel > 0.01).mean()), res.n_points, res.stats.get("seeds_off_brightness", 0))
-    assert out[True][0] <= 0.9 * out[False][0]
+    assert out[True][0] <= 0.5 * out[False][0] and out[False][0] > 0.002
     assert out[True][2] > 0 and out[False][2] == 0
     assert out[True][1] >= 0.98 * out[False][1]
