@@ -71,6 +71,11 @@ class LabelOptions:
         must exceed max(outlier_sigma·σ̂_Δ, max_residual_px) (σ̂_Δ = τ / skip_tol_sigma) for every k in
         1 … skip_max_steps, across the edge and between the local medians of its two ends' neighbourhoods; pieces
         it cuts off need min_split_component junctions. Needs `skip_edges`.
+    skip_edges_accepted: `skip_edges` on the components the first round accepted too (decision 0146): an edge that
+        skips missed crossings in an accepted component leaves a minority of its junctions a line off within the
+        outlier limit (unseen seed 156); with the accepted offset its step is read as for an ambiguous component, and
+        where one changes the component's labels are taken back and its pieces labelled again (0130's cuts are not
+        made there). The jump tolerance τ is then computed on every frame with at least 20 accepted edges.
     ill_posed_at_floor: the rig's labelling margin is judged "ill-posed" (the frame's warning, `rig check`) below
         min_rms_ratio × noise_floor_px, the runner-up miss this test needs (decision 0130); False: below the fixed
         0.1 px of decision 0004.
@@ -102,6 +107,7 @@ class LabelOptions:
     neighbour_noise: bool = True
     frame_retry_limit: bool = True
     skip_edges: bool = True
+    skip_edges_accepted: bool = True
     ill_posed_at_floor: bool = True
     cut_misfit_edges: bool = True
     skip_max_steps: int = 6
@@ -491,12 +497,12 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     # Edges that skip crossings (decision 0125): the tolerance of the residual jump across an edge, from the kept
     # edges of the components the first round wrote; only when a component may come out ambiguous.
     skip_tol = math.inf
-    if options.skip_edges and bool((g_ok.astype(np.bool_) & ~g_written.astype(np.bool_)).any()):
+    if options.skip_edges and (options.skip_edges_accepted or bool((g_ok.astype(np.bool_) & ~g_written.astype(np.bool_)).any())):
         skip_tol = _edge_jump_tol(model, lines, labels, comp, e_arrays[0], e_arrays[1], keep, options)
 
     restep_pos = np.full(M, -1, np.intp)  # `component_edge_steps`' work space
 
-    def _restep(members, off):
+    def _restep(members, off, cut_ok=True):
         """Decision 0125: give the component's edges the steps the epipolar geometry names under offset off, and cut
         those no step explains (decision 0130); (the re-propagated pieces, whether an edge was cut), or None when no
         edge changes."""
@@ -512,7 +518,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         changed = k != 1
         # edges no step along their line explains: cut (decision 0130)
         cut = np.zeros(len(sel), np.bool_)
-        if options.cut_misfit_edges:
+        if options.cut_misfit_edges and cut_ok:
             start, nbr, pos = graph.adjacency()
             # the jump must be an outlier as a junction's residual is (decision 0044's max(6σ̂, 0.3 px), with the
             # frame's neighbour scale σ̂_Δ = τ / skip_tol_sigma), and no step along the line may fit within it
@@ -568,6 +574,21 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             # a lone junction whose arms' fit leaves its position too uncertain for its margin (decision 0134)
             left["ambiguous"] += m
             stats["ambiguous"] += 1
+            continue
+        if (g >= 0 and g_written[g] and options.skip_edges_accepted and restep is not None
+                and (out_acc := _restep(members, np.asarray(g_off[g]), cut_ok=False)) is not None):
+            # an accepted component with edges that skip missed crossings under its offset (decision 0146: decision
+            # 0125's re-step on accepted components, without 0130's cuts): its labels are taken back and the pieces
+            # labelled again with the new steps
+            labels[members] = UNLABELLED
+            residual[members] = np.nan
+            stats["components_restepped"] = stats.get("components_restepped", 0) + 1
+            stats["components_restepped_accepted"] = stats.get("components_restepped_accepted", 0) + 1
+            pieces, _ = out_acc
+            for p in pieces:
+                component[p] = next_id
+                next_id += 1
+                work.append((p, rounds, -1, False))
             continue
         if g >= 0 and g_written[g]:
             # accepted and written in the compiled call (`_choice_of`'s path without the retry)
