@@ -203,7 +203,9 @@ def test_compiled_path_equals_the_reference_bit_for_bit(which, hole, small_scene
 
     L.label_piece_junctions = spy
     try:
-        _samples(s, model, obs, labels, t_nodes=False)  # the reference has no T nodes (decision 0098)
+        # the reference has no T nodes (decision 0098); decision 0146's seed check off: with it the missing-line
+        # scene has no anchor conflict (0 components), the path this test exercises; both paths are compared as before
+        _samples(s, model, obs, labels, t_nodes=False, seed_brightness=False)
     finally:
         L.label_piece_junctions = orig
     assert len(calls) == 1
