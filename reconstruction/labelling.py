@@ -107,7 +107,7 @@ class LabelOptions:
     neighbour_noise: bool = True
     frame_retry_limit: bool = True
     skip_edges: bool = True
-    skip_edges_accepted: bool = True
+    skip_edges_accepted: bool = False
     ill_posed_at_floor: bool = True
     cut_misfit_edges: bool = True
     skip_max_steps: int = 6
