@@ -75,7 +75,8 @@ class LabelOptions:
         skips missed crossings in an accepted component leaves a minority of its junctions a line off within the
         outlier limit (unseen seed 156); with the accepted offset its step is read as for an ambiguous component, and
         where one changes the component's labels are taken back and its pieces labelled again (0130's cuts are not
-        made there). The jump tolerance τ is then computed on every frame with at least 20 accepted edges.
+        made there). The jump tolerance τ is then computed on every frame with at least 20 accepted edges. Off: it
+        re-steps right edges of accepted components on unseen 132, 126, 116 (decision 0146, measured, not merged).
     ill_posed_at_floor: the rig's labelling margin is judged "ill-posed" (the frame's warning, `rig check`) below
         min_rms_ratio × noise_floor_px, the runner-up miss this test needs (decision 0130); False: below the fixed
         0.1 px of decision 0004.
