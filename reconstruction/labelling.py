@@ -29,7 +29,6 @@ from scipy.spatial import cKDTree
 from reconstruction import _ambiguity_kernels as _ak
 from reconstruction import _label_kernels as _k
 from reconstruction.ambiguity_guard import Guard
-from reconstruction.seed_brightness import drop_seeds_off_brightness
 from reconstruction.continuation import continue_lines, crossing_gap_px
 from reconstruction.depth_range_labels import label_pieces as label_depth_range_pieces
 from reconstruction.edge_cuts import edge_misfits
@@ -42,6 +41,7 @@ from reconstruction.surface_labels import label_from_surface
 from reconstruction.limb_lines import label_beside_lines
 from reconstruction.residual_clusters import elevated_pieces, kept_adjacency
 from reconstruction.rigmodel import UNLABELLED, RigModel
+from reconstruction.seed_brightness import drop_seeds_off_brightness
 from reconstruction.trace_ends import cut_facing_ends, cut_far_ends
 
 
@@ -873,9 +873,9 @@ class TraceOptions:
         each other (samples moved onto the chord between the anchors, fill_anchor samples inside the ends).
     max_ridge_step: cut a trace where the image brightness at consecutive samples changes by more than
         this share (an occluding edge where another surface's line continues this one); 0: off.
-    seed_brightness: a labelled junction's seeds on a trace piece whose median ridge brightness differs from the
-        median over all the junction's seeds by more than seed_brightness_share of the larger are taken back before
-        the seeds spread: the piece lies beyond a depth edge at the junction, on another surface whose line
+    seed_brightness: a labelled junction's seeds on one trace piece whose median ridge brightness differs from the
+        median over all the junction's seeds of that family by more than seed_brightness_share of the larger are
+        taken back before the seeds spread: the piece lies beyond a depth edge at the junction, on another surface whose line
         continues the junction's in the image (decision 0146, `reconstruction.seed_brightness`).
     continue_lines: carry a labelled piece's index to the pieces that continue its line across crossings
         where no junction was labelled (`reconstruction.continuation`, decision 0066); continue_reach: the
