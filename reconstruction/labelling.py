@@ -41,6 +41,7 @@ from reconstruction.surface_labels import label_from_surface
 from reconstruction.limb_lines import label_beside_lines
 from reconstruction.residual_clusters import elevated_pieces, kept_adjacency
 from reconstruction.rigmodel import UNLABELLED, RigModel
+from reconstruction.seed_brightness import drop_seeds_off_brightness
 from reconstruction.trace_ends import cut_facing_ends, cut_far_ends
 
 
@@ -70,6 +71,12 @@ class LabelOptions:
         must exceed max(outlier_sigma·σ̂_Δ, max_residual_px) (σ̂_Δ = τ / skip_tol_sigma) for every k in
         1 … skip_max_steps, across the edge and between the local medians of its two ends' neighbourhoods; pieces
         it cuts off need min_split_component junctions. Needs `skip_edges`.
+    skip_edges_accepted: `skip_edges` on the components the first round accepted too (decision 0146): an edge that
+        skips missed crossings in an accepted component leaves a minority of its junctions a line off within the
+        outlier limit (unseen seed 156); with the accepted offset its step is read as for an ambiguous component, and
+        where one changes the component's labels are taken back and its pieces labelled again (0130's cuts are not
+        made there). The jump tolerance τ is then computed on every frame with at least 20 accepted edges. Off: it
+        re-steps right edges of accepted components on unseen 132, 126, 116 (decision 0146, measured, not merged).
     ill_posed_at_floor: the rig's labelling margin is judged "ill-posed" (the frame's warning, `rig check`) below
         min_rms_ratio × noise_floor_px, the runner-up miss this test needs (decision 0130); False: below the fixed
         0.1 px of decision 0004.
@@ -101,6 +108,7 @@ class LabelOptions:
     neighbour_noise: bool = True
     frame_retry_limit: bool = True
     skip_edges: bool = True
+    skip_edges_accepted: bool = False
     ill_posed_at_floor: bool = True
     cut_misfit_edges: bool = True
     skip_max_steps: int = 6
@@ -492,12 +500,12 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     # Edges that skip crossings (decision 0125): the tolerance of the residual jump across an edge, from the kept
     # edges of the components the first round wrote; only when a component may come out ambiguous.
     skip_tol = math.inf
-    if options.skip_edges and bool((g_ok.astype(np.bool_) & ~g_written.astype(np.bool_)).any()):
+    if options.skip_edges and (options.skip_edges_accepted or bool((g_ok.astype(np.bool_) & ~g_written.astype(np.bool_)).any())):
         skip_tol = _edge_jump_tol(model, lines, labels, comp, e_arrays[0], e_arrays[1], keep, options)
 
     restep_pos = np.full(M, -1, np.intp)  # `component_edge_steps`' work space
 
-    def _restep(members, off):
+    def _restep(members, off, cut_ok=True):
         """Decision 0125: give the component's edges the steps the epipolar geometry names under offset off, and cut
         those no step explains (decision 0130); (the re-propagated pieces, whether an edge was cut), or None when no
         edge changes."""
@@ -513,7 +521,7 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         changed = k != 1
         # edges no step along their line explains: cut (decision 0130)
         cut = np.zeros(len(sel), np.bool_)
-        if options.cut_misfit_edges:
+        if options.cut_misfit_edges and cut_ok:
             start, nbr, pos = graph.adjacency()
             # the jump must be an outlier as a junction's residual is (decision 0044's max(6σ̂, 0.3 px), with the
             # frame's neighbour scale σ̂_Δ = τ / skip_tol_sigma), and no step along the line may fit within it
@@ -569,6 +577,21 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             # a lone junction whose arms' fit leaves its position too uncertain for its margin (decision 0134)
             left["ambiguous"] += m
             stats["ambiguous"] += 1
+            continue
+        if (g >= 0 and g_written[g] and options.skip_edges_accepted and restep is not None
+                and (out_acc := _restep(members, np.asarray(g_off[g]), cut_ok=False)) is not None):
+            # an accepted component with edges that skip missed crossings under its offset (decision 0146: decision
+            # 0125's re-step on accepted components, without 0130's cuts): its labels are taken back and the pieces
+            # labelled again with the new steps
+            labels[members] = UNLABELLED
+            residual[members] = np.nan
+            stats["components_restepped"] = stats.get("components_restepped", 0) + 1
+            stats["components_restepped_accepted"] = stats.get("components_restepped_accepted", 0) + 1
+            pieces, _ = out_acc
+            for p in pieces:
+                component[p] = next_id
+                next_id += 1
+                work.append((p, rounds, -1, False))
             continue
         if g >= 0 and g_written[g]:
             # accepted and written in the compiled call (`_choice_of`'s path without the retry)
@@ -854,6 +877,10 @@ class TraceOptions:
         each other (samples moved onto the chord between the anchors, fill_anchor samples inside the ends).
     max_ridge_step: cut a trace where the image brightness at consecutive samples changes by more than
         this share (an occluding edge where another surface's line continues this one); 0: off.
+    seed_brightness: a labelled junction's seeds on one trace piece whose median ridge brightness differs from the
+        median over all the junction's seeds of that family by more than seed_brightness_share of the larger are
+        taken back before the seeds spread: the piece lies beyond a depth edge at the junction, on another surface whose line
+        continues the junction's in the image (decision 0146, `reconstruction.seed_brightness`).
     continue_lines: carry a labelled piece's index to the pieces that continue its line across crossings
         where no junction was labelled (`reconstruction.continuation`, decision 0066); continue_reach: the
         longest gap, in junction steps; continue_lateral_px: the facing ends' largest sideways offset
@@ -935,6 +962,8 @@ class TraceOptions:
     cross_trim_sigma: float = 1.0
     fill_gaps: bool = True
     max_ridge_step: float = 0.15
+    seed_brightness: bool = True  # decision 0146: a junction's seeds on a piece off its seeds' brightness are taken back
+    seed_brightness_share: float = 0.2  # decision 0146: how far off (share of the larger median)
     fill_anchor: int = 3
     continue_lines: bool = True
     continue_reach: float = 0.6
@@ -1463,6 +1492,10 @@ def label_samples(
         else:
             order, piece, ts, tangent, sid = tp.order, tp.piece, tp.ts, tp.tangent, tp.sid
         stats["traces"] = int(piece[-1]) + 1
+        if options.seed_brightness and ridge is not None and len(ridge) == P:
+            # a junction's seeds on a piece of another surface, beyond a depth edge at the junction (decision 0146)
+            stats["seeds_off_brightness"] = int(drop_seeds_off_brightness(sid, piece, fam, seed, seed_jid, ridge,
+                                                                          float(options.seed_brightness_share), UNLABELLED))
         got, n_seeded, n_conflicting = _k.spread_seeds(sid, piece, ts, seed, seed_jid, index, UNLABELLED)
         stats["traces_seeded"] = int(n_seeded)
         stats["traces_conflicting"] = int(n_conflicting)

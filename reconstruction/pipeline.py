@@ -461,6 +461,7 @@ def _triangulate(
         "samples_depth_range": int(sample_stats.get("samples_depth_range", 0)),
         "samples_ambiguity_guard": int(sample_stats.get("samples_ambiguity_guard", 0)),  # decision 0141: labels taken back
         "samples_lone_crossings": int(sample_stats.get("samples_lone_crossings", 0)),
+        "seeds_off_brightness": int(sample_stats.get("seeds_off_brightness", 0)),  # decision 0146: seeds taken back
         "samples_crossing_filled": int(cp.stats["samples_crossing_filled"]) if cp is not None else 0,
         "samples_one_sided_filled": int(cp.stats.get("samples_one_sided_filled", 0)) if cp is not None else 0,
         "samples_border_filled": int(cp.stats.get("samples_border_filled", 0)) if cp is not None else 0,
