@@ -30,7 +30,9 @@ from reconstruction._jit import njit
 
 @njit
 def _group_medians(key, val, n_groups):
-    """Median of val over each key in 0..n_groups−1 (NaN where a group is empty)."""
+    """Median of val over each key in 0..n_groups−1 (NaN where a group is empty). Each group's values are kept
+    sorted as they are placed (insertion into the group's segment; a group is one junction line's seeds, a few
+    to a few tens), which needs no allocation per group."""
     cnt = np.zeros(n_groups + 1, np.intp)
     for k in range(key.shape[0]):
         cnt[key[k] + 1] += 1
@@ -40,15 +42,17 @@ def _group_medians(key, val, n_groups):
     fill = cnt[:-1].copy()
     for k in range(key.shape[0]):
         g = key[k]
-        buf[fill[g]] = val[k]
+        t = fill[g]
+        v = val[k]
+        while t > cnt[g] and buf[t - 1] > v:
+            buf[t] = buf[t - 1]
+            t -= 1
+        buf[t] = v
         fill[g] += 1
     med = np.full(n_groups, np.nan)
     for g in range(n_groups):
-        a, b = cnt[g], cnt[g + 1]
-        if b > a:
-            s = np.sort(buf[a:b])
-            m = b - a
-            med[g] = s[m // 2] if m % 2 else 0.5 * (s[m // 2 - 1] + s[m // 2])
+        if cnt[g + 1] > cnt[g]:
+            med[g] = _median_sorted(buf, cnt[g], cnt[g + 1])
     return med
 
 
@@ -64,68 +68,100 @@ def drop_seeds_off_brightness(sid, piece, fam, seed, seed_jid, ridge, max_step, 
     when their median ridge brightness differs from the median over all that junction's seeds of that family by
     more than max_step × the larger of the two. sid (n,): the kept samples in trace order, each piece one run of
     positions (as the trace kernels give them); piece (n,): their piece; fam (P,): every sample's family (1, 2).
-    Returns the number of seeds taken back."""
+    Returns the number of seeds taken back.
+
+    One pass over the samples (in trace order) reads what the rest needs into arrays that are then read in
+    order: the samples are scattered in the per-sample arrays, the positions are not."""
     n = sid.shape[0]
+    key = np.empty(n, np.intp)  # each position's junction line (2·junction + [family 2]); −1: not a seed
     n_j = 0
     n_s = 0
     for k in range(n):
         s = sid[k]
         if seed[s] != unlabelled and seed_jid[s] >= 0:
+            kk = 2 * seed_jid[s] + (1 if fam[s] == 2 else 0)
+            key[k] = kk
             n_s += 1
-            if 2 * seed_jid[s] + 2 > n_j:
-                n_j = 2 * seed_jid[s] + 2
+            if kk + 1 > n_j:
+                n_j = kk + 1
+        else:
+            key[k] = -1
     if n_s == 0:
         return 0
-    # the median over each junction line's seeds (key 2·junction + [family 2])
     jk = np.empty(n_s, np.intp)
-    jv = np.empty(n_s, np.float64)
+    jv = np.empty(n_s, np.float64)  # the seeds' ridge brightness, in position order
     m = 0
     for k in range(n):
-        s = sid[k]
-        if seed[s] != unlabelled and seed_jid[s] >= 0:
-            jk[m] = 2 * seed_jid[s] + (1 if fam[s] == 2 else 0)
-            jv[m] = ridge[s]
+        if key[k] >= 0:
+            jk[m] = key[k]
+            jv[m] = ridge[sid[k]]
             m += 1
     line_med = _group_medians(jk, jv, n_j)
-    # per piece (one run of positions), the median over each junction line's seeds on it
-    key = np.empty(n, np.intp)
-    val = np.empty(n, np.float64)
-    pos = np.empty(n, np.intp)
+    # per piece (one run of positions): its seeds grouped by junction line, each group's values kept sorted
+    gkey = np.empty(n_s, np.intp)  # the piece's junction lines, in order of first appearance
+    gcnt = np.empty(n_s + 1, np.intp)
+    gof = np.empty(n_s, np.intp)  # each of the piece's seeds: its group
+    val = np.empty(n_s, np.float64)
+    pos = np.empty(n_s, np.intp)
+    fill = np.empty(n_s, np.intp)
     dropped = 0
+    m = 0  # seeds before this piece
     a = 0
     while a < n:
         b = a + 1
         while b < n and piece[b] == piece[a]:
             b += 1
+        d = 0
         c = 0
+        last = -1
         for k in range(a, b):
-            s = sid[k]
-            if seed[s] != unlabelled and seed_jid[s] >= 0:
-                kk = 2 * seed_jid[s] + (1 if fam[s] == 2 else 0)
-                vv = float(ridge[s])
-                # insertion sort by (key, value); a piece holds few seeds
-                t = c
-                while t > 0 and (key[t - 1] > kk or (key[t - 1] == kk and val[t - 1] > vv)):
-                    key[t] = key[t - 1]
-                    val[t] = val[t - 1]
-                    pos[t] = pos[t - 1]
-                    t -= 1
-                key[t] = kk
-                val[t] = vv
-                pos[t] = s
+            kk = key[k]
+            if kk >= 0:
+                if last >= 0 and gkey[last] == kk:
+                    g = last
+                else:
+                    g = -1
+                    for t in range(d):
+                        if gkey[t] == kk:
+                            g = t
+                            break
+                    if g < 0:
+                        g = d
+                        gkey[d] = kk
+                        gcnt[d + 1] = 0
+                        d += 1
+                gcnt[g + 1] += 1
+                gof[c] = g
                 c += 1
-        g0 = 0
-        while g0 < c:
-            g1 = g0 + 1
-            while g1 < c and key[g1] == key[g0]:
-                g1 += 1
-            pm = _median_sorted(val, g0, g1)
-            lm = line_med[key[g0]]
-            if abs(pm - lm) > max_step * max(pm, lm):
-                for t in range(g0, g1):
-                    seed[pos[t]] = unlabelled
-                    seed_jid[pos[t]] = -1
-                    dropped += 1
-            g0 = g1
+                last = g
+        if c:
+            gcnt[0] = 0
+            for g in range(d):
+                gcnt[g + 1] += gcnt[g]
+                fill[g] = gcnt[g]
+            c = 0
+            for k in range(a, b):
+                if key[k] >= 0:
+                    g = gof[c]
+                    v = jv[m + c]
+                    c += 1
+                    t = fill[g]
+                    while t > gcnt[g] and val[t - 1] > v:
+                        val[t] = val[t - 1]
+                        pos[t] = pos[t - 1]
+                        t -= 1
+                    val[t] = v
+                    pos[t] = sid[k]
+                    fill[g] += 1
+            m += c
+            for g in range(d):
+                g0, g1 = gcnt[g], gcnt[g + 1]
+                pm = _median_sorted(val, g0, g1)
+                lm = line_med[gkey[g]]
+                if abs(pm - lm) > max_step * max(pm, lm):
+                    for t in range(g0, g1):
+                        seed[pos[t]] = unlabelled
+                        seed_jid[pos[t]] = -1
+                        dropped += 1
         a = b
     return dropped
