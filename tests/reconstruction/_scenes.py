@@ -82,3 +82,29 @@ def collinear_plate():
     plate = Box(Xc - n_plate * 10.0, np.array([100.0, 100.0, 20.0]), R, albedo=min(1.0, 0.8 * cos_bg / cos_plate))
     image, truth = render_pinhole([Plane(p_bg, n_bg), plate])
     return procam, image, truth, project(procam, Xc + 50.0 * u1)
+
+
+def unseen_render(seed: int):
+    """Scene `seed` of benchmarks.unseen, rendered as that benchmark renders it (noise seeded with `seed`), with
+    one OpenCV thread: (procam, pattern, image, truth, working volume (min, max) mm)."""
+    import cv2
+
+    from benchmarks._common import render_scene
+    from benchmarks.unseen import draw_scene
+    from drivers.sim.presets import depth_range
+
+    cv2.setNumThreads(1)
+    _rig, procam, scene, pattern, noise = draw_scene(seed)
+    img, truth = render_scene(procam, scene, pattern, noise_grey=noise, seed=seed)
+    return procam, pattern, img, truth, depth_range(procam, scene)
+
+
+def unseen_frame(seed: int):
+    """unseen_render's scene through the extraction stage with the default options and its working volume:
+    (procam, pattern, truth, options, frame); finish_frame(replace(frame, options=…)) runs the label stage with other
+    options."""
+    from reconstruction.pipeline import ReconstructOptions, extract_frame
+
+    procam, pattern, img, truth, dr = unseen_render(seed)
+    o = ReconstructOptions(depth_min_mm=dr[0], depth_max_mm=dr[1])
+    return procam, pattern, truth, o, extract_frame(img, procam, pattern, options=o)

@@ -74,19 +74,12 @@ def test_samples_off_the_junction_line_are_not_read():
 def test_seed_198_ghost_surface_taken_back():
     """Against simulated truth: with the guard the share of points more than 1 % off is within the target and no
     more than a handful of samples carry a wrong index; without it the ghost surface is back."""
-    import cv2
+    from benchmarks._common import relative_errors, sample_bilinear
+    from reconstruction.pipeline import finish_frame
+    from tests.reconstruction._scenes import unseen_frame
 
-    cv2.setNumThreads(1)
-    from benchmarks._common import relative_errors, render_scene, sample_bilinear
-    from benchmarks.unseen import draw_scene
-    from drivers.sim.presets import depth_range
-    from reconstruction.pipeline import ReconstructOptions, extract_frame, finish_frame
-
-    rig, procam, scene, pattern, noise = draw_scene(198)
-    img, truth = render_scene(procam, scene, pattern, noise_grey=noise, seed=198)
-    dr = depth_range(procam, scene)
-    o = ReconstructOptions(depth_min_mm=dr[0], depth_max_mm=dr[1])
-    frame = extract_frame(img, procam, pattern, options=o)
+    procam, pattern, truth, o, frame = unseen_frame(198)
+    dr = (o.depth_min_mm, o.depth_max_mm)
     out = {}
     for on in (True, False):
         res = finish_frame(replace(frame, options=replace(o, trace=replace(o.trace, ambiguity_guard=on))))

@@ -145,20 +145,13 @@ def test_no_warning_where_the_later_steps_put_points_on_the_left_out_junctions()
 
 
 def test_unseen_178_warns_with_the_offset_along_the_epipolar_lines():
-    import cv2
-
-    cv2.setNumThreads(1)
-    from benchmarks._common import render_scene, sample_bilinear
-    from benchmarks.unseen import draw_scene
-    from drivers.sim.presets import depth_range
+    from benchmarks._common import sample_bilinear
     from reconstruction.labelling import label_epipolar
-    from reconstruction.pipeline import ReconstructOptions, extract_frame, finish_frame
+    from reconstruction.pipeline import finish_frame
+    from tests.reconstruction._scenes import unseen_frame
 
-    rig, procam, scene, pattern, noise = draw_scene(178)
-    img, truth = render_scene(procam, scene, pattern, noise_grey=noise, seed=178)
-    dr = depth_range(procam, scene)
-    o = ReconstructOptions(depth_min_mm=dr[0], depth_max_mm=dr[1])
-    frame = extract_frame(img, procam, pattern, options=o)
+    procam, pattern, truth, o, frame = unseen_frame(178)
+    dr = (o.depth_min_mm, o.depth_max_mm)
     on = finish_frame(frame)
     off = finish_frame(replace(frame, options=replace(o, ambiguous_share_warning=1.0)))
     assert np.array_equal(on.points_proj, off.points_proj) and np.array_equal(on.junction_labels, off.junction_labels)

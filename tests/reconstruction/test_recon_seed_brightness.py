@@ -61,19 +61,11 @@ def test_seed_185_seeds_across_a_silhouette_taken_back():
     """Against simulated truth: with the check at most half as many points are more than 1 % off (measured 156 →
     10 with the share 0.2; 0.25 leaves 129: a 3-sample piece across the silhouette), for at most 2 % of the
     points."""
-    import cv2
+    from benchmarks._common import relative_errors
+    from reconstruction.pipeline import finish_frame
+    from tests.reconstruction._scenes import unseen_frame
 
-    cv2.setNumThreads(1)
-    from benchmarks._common import relative_errors, render_scene
-    from benchmarks.unseen import draw_scene
-    from drivers.sim.presets import depth_range
-    from reconstruction.pipeline import ReconstructOptions, extract_frame, finish_frame
-
-    rig, procam, scene, pattern, noise = draw_scene(185)
-    img, truth = render_scene(procam, scene, pattern, noise_grey=noise, seed=185)
-    dr = depth_range(procam, scene)
-    o = ReconstructOptions(depth_min_mm=dr[0], depth_max_mm=dr[1])
-    frame = extract_frame(img, procam, pattern, options=o)
+    procam, pattern, truth, o, frame = unseen_frame(185)
     out = {}
     for on in (True, False):
         res = finish_frame(replace(frame, options=replace(o, trace=replace(o.trace, seed_brightness=on))))

@@ -18,20 +18,13 @@ from reconstruction.rigmodel import UNLABELLED
 
 
 def test_seed_156_accepted_components_restepped():
-    import cv2
-
-    cv2.setNumThreads(1)
-    from benchmarks._common import relative_errors, render_scene, sample_bilinear
-    from benchmarks.unseen import draw_scene
-    from drivers.sim.presets import depth_range
+    from benchmarks._common import relative_errors, sample_bilinear
     from reconstruction.labelling import label_epipolar
-    from reconstruction.pipeline import ReconstructOptions, extract_frame, finish_frame
+    from reconstruction.pipeline import finish_frame
+    from tests.reconstruction._scenes import unseen_frame
 
-    rig, procam, scene, pattern, noise = draw_scene(156)
-    img, truth = render_scene(procam, scene, pattern, noise_grey=noise, seed=156)
-    dr = depth_range(procam, scene)
-    o = ReconstructOptions(depth_min_mm=dr[0], depth_max_mm=dr[1])
-    frame = extract_frame(img, procam, pattern, options=o)
+    procam, pattern, truth, o, frame = unseen_frame(156)
+    dr = (o.depth_min_mm, o.depth_max_mm)
     qj = frame.obs.q_junction
     qp = sample_bilinear(truth.q_proj, qj)
     wrong, right, bad = {}, {}, {}
