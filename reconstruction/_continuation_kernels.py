@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from reconstruction._jit import njit
-from reconstruction._label_kernels import _union_find_root
+from reconstruction._label_kernels import _union_find_join, _union_find_root
 
 
 @njit
@@ -230,13 +230,7 @@ def chain_values(n_p, a, b, keep_piece, labelled, val, jsrc):
     parent = np.arange(n_p)
     for k in range(a.shape[0]):
         if keep_piece[a[k]] and keep_piece[b[k]]:
-            ra = _union_find_root(parent, a[k])
-            rb = _union_find_root(parent, b[k])
-            if ra != rb:
-                if ra < rb:
-                    parent[rb] = ra
-                else:
-                    parent[ra] = rb
+            _union_find_join(parent, a[k], b[k])
     lo = np.full(n_p, np.inf)
     hi = np.full(n_p, -np.inf)
     src = np.full(n_p, -1, np.int64)

@@ -194,6 +194,18 @@ def _union_find_root(parent, a):
 
 
 @njit
+def _union_find_join(parent, a, b):
+    """Join the sets of a and b: the larger root points to the smaller (the rule every caller uses, so that a
+    component's root is its smallest member)."""
+    ra = _union_find_root(parent, a)
+    rb = _union_find_root(parent, b)
+    if ra < rb:
+        parent[rb] = ra
+    elif rb < ra:
+        parent[ra] = rb
+
+
+@njit
 def _component_order(comp, t, n, ncomp):
     """Positions 0..n−1 ordered by component (counting sort), then along it: a stable sort by t, i.e. by
     (t, position). The samples come in raster order, so a component is nearly sorted one way or the other:
@@ -300,13 +312,7 @@ def traces(q, fam, r, c, H, W, link_px, lateral_px, cos_turn, w, ridge, ridge_st
                         d0 = q[b, 0] - q[a, 0]
                         d1 = q[b, 1] - q[a, 1]
                         if d0 * d0 + d1 * d1 <= link2:
-                            ra = _union_find_root(parent, a)
-                            rb = _union_find_root(parent, b)
-                            if ra != rb:
-                                if ra < rb:
-                                    parent[rb] = ra
-                                else:
-                                    parent[ra] = rb
+                            _union_find_join(parent, a, b)
             if row >= 1:  # row − 1 is no longer needed: clear it
                 key = f * H + row - 1
                 for s in range(rstart[key], rstart[key + 1]):
@@ -2535,13 +2541,7 @@ def join_group_ends(q, fam, sel, e_lo, e_hi, ng, link_px):
                 d1 = by[it] - y
                 if d0 * d0 + d1 * d1 <= link2:
                     g2 = bg[it]
-                    ra = _union_find_root(parent, g)
-                    rb = _union_find_root(parent, g2)
-                    if ra != rb:
-                        if ra < rb:
-                            parent[rb] = ra
-                        else:
-                            parent[ra] = rb
+                    _union_find_join(parent, g, g2)
     return parent
 
 

@@ -60,7 +60,7 @@ import numpy as np
 
 from reconstruction import _extract_kernels as _ek
 from reconstruction._jit import njit
-from reconstruction._label_kernels import _union_find_root
+from reconstruction._label_kernels import _union_find_join, _union_find_root
 from reconstruction.piece_seeds import _SIN_MIN_CROSSING
 from reconstruction.rigmodel import UNLABELLED, RigModel
 
@@ -89,10 +89,7 @@ def _k_components(n, edges):
     """Connected components (numbered by their lowest member) of n items joined by edges (E, 2)."""
     parent = np.arange(n)
     for k in range(edges.shape[0]):
-        a = _union_find_root(parent, edges[k, 0])
-        b = _union_find_root(parent, edges[k, 1])
-        if a != b:
-            parent[max(a, b)] = min(a, b)
+        _union_find_join(parent, edges[k, 0], edges[k, 1])
     return _k_number(parent)
 
 
@@ -985,13 +982,7 @@ def _k_short_pairs(sub, renum, ek, edges, xy, min_px, at_frame):
     m = sub.shape[0]
     parent = np.arange(m)
     for t in ek:
-        a = _union_find_root(parent, renum[edges[t, 0]])
-        b = _union_find_root(parent, renum[edges[t, 1]])
-        if a != b:
-            if a < b:
-                parent[b] = a
-            else:
-                parent[a] = b
+        _union_find_join(parent, renum[edges[t, 0]], renum[edges[t, 1]])
     r = np.empty(m, np.int64)
     size = np.zeros(m, np.int64)
     first = np.full(m, -1, np.int64)

@@ -41,7 +41,7 @@ import math
 import numpy as np
 
 from reconstruction._jit import njit
-from reconstruction._label_kernels import _union_find_root
+from reconstruction._label_kernels import _union_find_join, _union_find_root
 from reconstruction.piece_junctions import _k_continues, _k_leaves_frame, _k_node_ends
 
 
@@ -243,13 +243,7 @@ def x_use(n_nodes, edges, eseg, cand, labelled, stem, min_component):
         a = edges[t, 0]
         b = edges[t, 1]
         if stem[a] < 0 and stem[b] < 0:
-            ra = _union_find_root(parent, a)
-            rb = _union_find_root(parent, b)
-            if ra != rb:
-                if ra < rb:
-                    parent[rb] = ra
-                else:
-                    parent[ra] = rb
+            _union_find_join(parent, a, b)
     root = np.empty(n_nodes, np.int64)
     size = np.zeros(n_nodes, np.int64)
     for k in range(n_nodes):
