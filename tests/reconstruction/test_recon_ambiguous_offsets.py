@@ -18,22 +18,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calibration.models import Intrinsics, ProCam, look_at
+from calibration.models import ProCam
 from reconstruction.ambiguous_offsets import AmbiguousOffset, ambiguity_warning, canonical, competing_offsets
 from reconstruction.geometry import depth_cam, triangulate_rays
-from reconstruction.patterns import GridPattern
 from reconstruction.placement import labelling_margin
 from reconstruction.rigmodel import UNLABELLED, rig_model
+from tests.reconstruction.test_placement import GRID, _rig  # the placement tests' rig, one copy
 
-CAM = Intrinsics(640, 512, [[1150.0, 0, 319.5], [0, 1150.0, 255.5], [0, 0, 1]])
-PROJ = Intrinsics(1024, 1024, [[2400.0, 0, 511.5], [0, 2400.0, 511.5], [0, 0, 1]])
-GRID = GridPattern()
-
-
-def _rig(angle_deg: float, baseline_mm: float = 300.0) -> ProCam:
-    a = np.deg2rad(angle_deg)
-    t = baseline_mm * np.array([np.cos(a), -np.sin(a), 0.0])
-    return ProCam(CAM, PROJ, look_at(t, np.array([0.0, 0.0, 900.0])), t)
 
 
 def _seen(procam: ProCam, model, ii, jj, z_cam: float) -> np.ndarray:
