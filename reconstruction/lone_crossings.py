@@ -57,6 +57,7 @@ from reconstruction.acute_crossings import epipolar_dir_cam, expected_order_sign
 from reconstruction.depth_range_labels import _k_stretches_meet, index_stretch
 from reconstruction.geometry import depth_cam, epipolar_lines, triangulate_rays
 from reconstruction._jit import njit
+from reconstruction._label_kernels import _union_find_join
 from reconstruction.rigmodel import RigModel, _k_cam_bilinear, _k_sheet_depth
 
 
@@ -262,15 +263,8 @@ def _k_nodes(A, B, X, e_pt, e_dir, e_piece, e_fam, n_e, merge_px, lateral_px, co
             dx = X[i, 0] - X[j, 0]
             dy = X[i, 1] - X[j, 1]
             if dx * dx + dy * dy <= r2:
-                a = i
-                while parent[a] != a:
-                    a = parent[a]
-                b = j
-                while parent[b] != b:
-                    b = parent[b]
-                if a != b:
-                    parent[max(a, b)] = min(a, b)
-    for i in range(m):
+                _union_find_join(parent, i, j)
+    for i in range(m):  # a parent is never larger than its child: in this order one pass reaches the roots
         parent[i] = parent[parent[i]]
     node_id = np.full(m, -1, np.int64)
     N = 0
