@@ -37,7 +37,7 @@ from reconstruction.patterns import GridPattern
 from reconstruction._jit import njit
 from reconstruction.placement import FIXED_ILL_POSED_PX
 from reconstruction.rigmodel import UNLABELLED, RigModel, rig_model
-from reconstruction.sheet_precision import SheetPrecisionOptions, across_line_scale, frame_noise_px, imprecise_samples, own_offsets_px
+from reconstruction.sheet_precision import SheetPrecisionOptions, across_line_scale, frame_noise_px, imprecise_samples
 
 
 @dataclass(frozen=True)
@@ -519,7 +519,8 @@ def _drop_imprecise(model: RigModel, lab: Labels, options: ReconstructOptions, d
     if options.sheet_precision.own_offset and obs is not None and out_s is not None:
         scale = across_line_scale(obs, lab.labels, model.line_offsets_px, model.index_min, float(pat.n1), float(pat.n2), UNLABELLED)
         scale = np.where(np.isfinite(scale), scale, 1.0 / model.cam_per_proj_px)  # too few labelled edges: the rig's scale
-        own = own_offsets_px(out_s[n_keep_j:n_keep], q_s, obs, scale)
+        # an offset over half the line's width is off the line's light (a kink, an edge): not its sideways error
+        own = (out_s[n_keep_j:n_keep], q_s, obs, scale, 0.5 * float(pat.line_width_px))
     bad = imprecise_samples(np.asarray(model.procam.projector.K, np.float64), model.procam.t_proj_cam, float(pat.n1), float(pat.n2),
                             out_p[n_keep_j:n_keep], out_f[n_keep_j:n_keep], delta, options.sheet_precision, own)
     n_bad = int(bad.sum())

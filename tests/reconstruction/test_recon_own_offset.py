@@ -99,18 +99,27 @@ def test_a_row_is_judged_at_the_larger_of_the_frame_delta_and_its_own_offset():
     K = np.array([[1400.0, 0, 511.5], [0, 1400.0, 383.5], [0, 0, 1]])
     t = np.array([-200.0, 0.0, 0.0])
     n1 = 0.02  # nearly along the (horizontal) epipolar lines
-    p = np.array([[10.0, 5.0, 900.0]] * 4)
-    fam = np.array([1, 1, 1, 0], np.int8)
-    pe = predicted_error(K, t, np.full(4, n1), p, 1.0)[0]  # relative error per px
+    p = np.array([[10.0, 5.0, 900.0]] * 5)
+    fam = np.array([1, 1, 1, 1, 0], np.int8)
+    pe = predicted_error(K, t, np.full(5, n1), p, 1.0)[0]  # relative error per px
     lim = 0.5
     d_cut = lim / 100.0 / pe  # δ at which a row reaches the limit
     o = SheetPrecisionOptions(max_error_pct=lim)
     delta = 0.5 * d_cut
     assert not imprecise_samples(K, t, n1, 2.0, p, fam, delta, o).any()
-    own = np.array([0.0, 0.99 * d_cut, 1.01 * d_cut, 10.0 * d_cut])
-    assert imprecise_samples(K, t, n1, 2.0, p, fam, delta, o, own).tolist() == [False, False, True, False]  # a junction: never
+    # the rows' samples: 0.99, 1.01 and 10 d_cut off one straight segment (the x axis; scale 1), one on it, a junction row
+    off = np.array([0.99, 1.01, 10.0, 0.0]) * d_cut
+    obs = _obs(np.column_stack([np.arange(4.0), off]), [1, 1, 1, 1], [0, 0, 0, 0], [-1] * 4, [[0.0, 0.0]], [[2.0, 0.0]],
+               [[0.0, 0.0]], [[[1.0, 0.0], [0.0, 1.0]]])
+    src = np.array([0, 1, 2, 3, -1])
+    own = (src, obs.q, obs, np.array([1.0, 1.0]), 100.0)
+    assert imprecise_samples(K, t, n1, 2.0, p, fam, delta, o, own).tolist() == [False, True, True, False, False]  # a junction: never
+    np.testing.assert_allclose(own_offsets_px(src, obs.q, obs, np.array([1.0, 1.0])), np.r_[off, 0.0], rtol=1e-9, atol=1e-12)
+    # the cap: an own offset counts at most cap px
+    assert imprecise_samples(K, t, n1, 2.0, p, fam, delta, o, own[:4] + (0.9 * d_cut,)).tolist() == [False] * 5
+    assert imprecise_samples(K, t, n1, 2.0, p, fam, delta, o, own[:4] + (1.05 * d_cut,)).tolist() == [False, True, True, False, False]
     # own offsets below δ change nothing
-    assert imprecise_samples(K, t, n1, 2.0, p, fam, 1.01 * d_cut, o, np.full(4, 0.1 * d_cut)).tolist() == [True, True, True, False]
+    assert imprecise_samples(K, t, n1, 2.0, p, fam, 1.01 * d_cut, o, own).tolist() == [True, True, True, True, False]
     assert not imprecise_samples(K, t, n1, 2.0, p, fam, delta, SheetPrecisionOptions(enabled=False), own).any()
 
 
