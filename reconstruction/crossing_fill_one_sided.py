@@ -36,7 +36,7 @@ The paper labeller's output is left alone (the pipeline calls this only for the 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -118,9 +118,10 @@ def fill_one_sided(
     that of the end sample); stats: ends looked at, filled, rejected by reason, samples added.
     shared: `fill_crossings`' work on this frame (`CrossingPoints.shared`; `with_one_sided` passes it when
     the inputs are the same objects): then q[:shared.n], family, index and q_samples, family_samples,
-    q_junction, junction_labels must be those it was computed from. Its order is extended by the appended
-    samples (`order_with_appended`) and its grids reused when the cell is equal; the outputs are those
-    without it, bit for bit."""
+    q_junction, junction_labels must be those it was computed from, and when shared.order_all is given,
+    q[shared.n:], family and index those of shared.points (`with_one_sided` sees to both). Its order is extended
+    by the appended samples (shared.order_all, else `order_with_appended`) and its grids reused when the cell is
+    equal; the outputs are those without it, bit for bit."""
     stats: dict = {"ends": 0, "ends_filled": 0, "samples_one_sided_filled": 0, "ends_rejected": {}}
     if not options.enabled:
         return _empty(stats)
@@ -130,6 +131,8 @@ def fill_one_sided(
     d1, d2 = _family_directions(model)
     if shared is not None and shared.n == len(q):
         order = shared.order  # nothing appended: the same arrays, the same order
+    elif shared is not None and shared.order_all is not None and shared.n + len(shared.points[0]) == len(q):
+        order = shared.order_all  # `fill_crossings`' own points appended: put in at their gaps (decision 0149)
     elif shared is not None and shared.n < len(q):
         order = order_with_appended(shared, q, fam, idx, d1, d2)
     else:
@@ -517,13 +520,16 @@ def with_one_sided(
     `.junction`) with `cp`'s appended; stats: cp's, with "samples_one_sided_filled" and "one_sided" (the
     call's own counts). kwargs: `fill_one_sided`'s keywords except index_samples (the label stage's index)
     and shared: `cp.shared` (the order and grids `fill_crossings` built) is passed on when the arrays here
-    are the very objects it was computed from."""
+    are the very objects it was computed from; the result keeps `cp.shared` (for the border fill's boxes,
+    decision 0149)."""
     fam = np.asarray(family).reshape(-1)
     sh = cp.shared if cp is not None else None
     same = (q, family, index, kwargs.get("q_samples"), kwargs.get("family_samples"), kwargs.get("q_junction"),
             kwargs.get("junction_labels"))
     if sh is not None and not all(a is b for a, b in zip(sh.inputs, same)):
         sh = None  # computed from other arrays: not reused
+    if sh is not None and sh.order_all is not None and not all(a is b for a, b in zip(sh.points, (cp.q, cp.family, cp.index))):
+        sh = replace(sh, order_all=None)  # other points than `fill_crossings`' own: their order is not known
     if cp is not None and len(cp.index):
         q_all = np.concatenate([np.asarray(q, np.float64).reshape(-1, 2), cp.q])
         f_all = np.concatenate([fam.astype(np.intp), cp.family.astype(np.intp)])
@@ -532,4 +538,4 @@ def with_one_sided(
     else:
         q_all, f_all, k_all, j_all = q, fam, index, junction
     op = fill_one_sided(q_all, f_all, k_all, j_all, index_samples=index, shared=sh, **kwargs)
-    return appended(cp, op, "samples_one_sided_filled", "one_sided")
+    return appended(cp, op, "samples_one_sided_filled", "one_sided", cp.shared if cp is not None else None)
