@@ -1,7 +1,7 @@
 """Decision 0149: work the three point-adding steps of the label stage share (reconstruction.crossing_fill,
 crossing_fill_one_sided, border_fill). Each shared structure must equal the one it stands for, recomputed:
 the order of the samples with the two-sided fill's points put in at their gaps (`_k_insert_order`) = the full
-sort; the lines' boxes (`_k_order_range_box`, `_k_mark_box`) = the walk over every sample (`_k_mark_lines`);
+sort, and its runs' breaks = `_k_run_breaks`; the lines' boxes (`_k_order_range_box`, `_k_mark_box`) = the walk over every sample (`_k_mark_lines`);
 and the fills' points with the shared work = without it, bit for bit, on simulated frames."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import pytest
 from benchmarks._common import bench_scenes, render_scene
 from reconstruction import border_fill as BF
 from reconstruction import crossing_fill as CF
+from reconstruction import crossing_fill_one_sided as OS
 from reconstruction.border_fill import with_border
 from reconstruction.crossing_fill import CrossingFillOptions, fill_crossings
 from reconstruction.crossing_fill_one_sided import OneSidedFillOptions, with_one_sided
@@ -66,6 +67,8 @@ def test_inserted_order_is_the_full_sort(frames, name):
     idx = np.concatenate([sl.index, cp.index])
     want = _full_order(q, fam, idx, model)
     assert np.array_equal(sh.order_all, want)
+    mg = OneSidedFillOptions().min_gap_cells * one["cell_px"]
+    assert sh.brk_gap == mg and np.array_equal(sh.brk_all, OS._k_run_breaks(q, fam, idx, want, mg))
     d1, d2 = CF._family_directions(model)
     assert np.array_equal(CF.order_with_appended(dataclasses.replace(sh, order_all=None), q, fam, idx, d1, d2), want)
 
@@ -111,13 +114,19 @@ def test_insertion_refuses_what_is_not_the_order():
     acc[::7] = False  # gaps not filled take no points
     keep = np.repeat(acc, [CF._n_gap_points(L, cell) for L in gaps[:, 3]])
     qn, fn, kn = qn[keep], fn[keep], kn[keep]
-    out, ok = CF._k_insert_order(order, key_s, key_range, gp, gaps, acc, cell, qn, fn, kn, n0, d1, d2)
+    mg = 1.6
+    pb = OS._k_run_breaks(q, fam, idx, order, mg)
+    out, brk, ok = CF._k_insert_order(order, key_s, key_range, gp, gaps, acc, cell, qn, fn, kn, n0, d1, d2, q, fam, idx, pb, mg)
     assert ok
-    want = CF._sorted_by_key(*CF._k_order(np.concatenate([q, qn]), np.concatenate([fam, fn]), np.concatenate([idx, kn]), d1, d2))
+    q_all, f_all, k_all = np.concatenate([q, qn]), np.concatenate([fam, fn]), np.concatenate([idx, kn])
+    want = CF._sorted_by_key(*CF._k_order(q_all, f_all, k_all, d1, d2))
     assert np.array_equal(out, want)
+    # the runs' breaks of the result: those `_k_run_breaks` finds in it
+    assert np.array_equal(brk, OS._k_run_breaks(q_all, f_all, k_all, out, mg))
+    assert 0 < brk.sum() < len(brk)
 
     def refused(qn2, fn2, kn2):
-        return not CF._k_insert_order(order, key_s, key_range, gp, gaps, acc, cell, qn2, fn2, kn2, n0, d1, d2)[1]
+        return not CF._k_insert_order(order, key_s, key_range, gp, gaps, acc, cell, qn2, fn2, kn2, n0, d1, d2, q, fam, idx, pb, mg)[2]
 
     beyond = qn.copy()
     beyond[5] = q[order[pos[1] + 1]] + (q[order[pos[1] + 1]] - q[order[pos[1]]])  # past the gap's far sample
@@ -186,3 +195,61 @@ def test_fills_with_shared_work_equal_the_fills_without(frames, name):
     cp1 = with_one_sided(cp, sl.q, obs.family, sl.index, sl.junction, **one)
     copy = with_border(cp1, sl.q.copy(), obs.family, sl.index, sl.junction, **bk)
     assert np.array_equal(copy.q, got.q) and copy.stats == got.stats
+
+
+def _beyond_3x3(ox, oy, ux, uy, s_c, reach, width, f, k, qs, ks, x0, y0, gcell, gw, gh, start, mid, items, same):
+    """`crossing_fill_one_sided._beyond` before decision 0149 (all of the 3×3 cells read), verbatim in Python."""
+    mx = ox + (s_c + 0.5 * reach) * ux
+    my = oy + (s_c + 0.5 * reach) * uy
+    gx = int((mx - x0) / gcell)
+    gy = int((my - y0) / gcell)
+    out = 0
+    for cy in range(max(gy - 1, 0), min(gy + 2, gh)):
+        for cx in range(max(gx - 1, 0), min(gx + 2, gw)):
+            c = cy * gw + cx
+            t0 = start[c] if f == 1 else mid[c]
+            t1 = mid[c] if f == 1 else start[c + 1]
+            for t in range(t0, t1):
+                i = items[t]
+                if not np.isfinite(ks[i]):
+                    continue
+                ex = qs[i, 0] - ox
+                ey = qs[i, 1] - oy
+                s = ex * ux + ey * uy
+                if s <= s_c or s > s_c + reach or abs(-ex * uy + ey * ux) > width:
+                    continue
+                if ks[i] != k:
+                    return 1
+                out = 2
+    return out if same else 0
+
+
+def test_beyond_reads_only_the_cells_of_its_box():
+    """`_beyond` reading only the cells its region's bounding box reaches = the former 3×3 read, on random
+    frames: dense samples on a few lines, regions at the grid's edges and outside it (clamped cells), every
+    direction, samples on the region's limits."""
+    rng = np.random.default_rng(5)
+    n_diff = 0
+    for trial in range(30):
+        P = 4000
+        qs = rng.uniform(0.0, 300.0, (P, 2))
+        fs = rng.integers(1, 3, P).astype(np.intp)
+        ks = np.where(rng.random(P) < 0.8, rng.integers(-3, 4, P).astype(np.float64), np.nan)
+        gcell = float(rng.uniform(6.0, 20.0))
+        x0, y0, gw, gh, start, mid, items = CF._family_grid(qs, fs, gcell)
+        for _ in range(200):
+            ox, oy = rng.uniform(-30.0, 330.0, 2)
+            a = rng.uniform(0.0, 2.0 * np.pi)
+            ux, uy = np.cos(a), np.sin(a)
+            s_c, reach, width = float(rng.uniform(0.0, 5.0)), float(rng.uniform(1.0, 12.0)), float(rng.uniform(0.5, 6.0))
+            f, k, same = int(rng.integers(1, 3)), float(rng.integers(-3, 4)), bool(rng.random() < 0.5)
+            if rng.random() < 0.2:  # a sample on the region's far limit
+                i = int(rng.integers(P))
+                qs_i = (ox + (s_c + reach) * ux - width * uy, oy + (s_c + reach) * uy + width * ux)
+                qs[i] = qs_i
+                x0, y0, gw, gh, start, mid, items = CF._family_grid(qs, fs, gcell)
+            args = (ox, oy, ux, uy, s_c, reach, width, f, k, qs, ks, x0, y0, gcell, gw, gh, start, mid, items, same)
+            want = _beyond_3x3(*args)
+            assert OS._beyond(*args) == want
+            n_diff += want != 0
+    assert n_diff > 500  # most regions hold samples
