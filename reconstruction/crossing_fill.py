@@ -96,8 +96,7 @@ class FillShared:
     them). order_all: the order of q followed by the points `fill_crossings` returned (`points`: the very
     arrays q, family, index of its `CrossingPoints`), those points put in at their gaps (`_k_insert_order`,
     decision 0149): `order_with_appended`'s result for them, without its sort and merge; None where that
-    insertion is not exact (the one-sided fill then calls `order_with_appended`); brk_all: order_all's runs'
-    breaks at brk_gap (`crossing_fill_one_sided._k_run_breaks`), for the one-sided fill when its gap is that. box: the lines' boxes of q
+    insertion is not exact (the one-sided fill then calls `order_with_appended`). box: the lines' boxes of q
     (`_k_order_range_box` with the model's index range, for the border fill's test "which lines come near the
     border"; None when a labelled sample's position is not finite: the border fill then walks the samples);
     box_kmin: the line index of its first column (the model's index_min)."""
@@ -111,8 +110,6 @@ class FillShared:
     grids: tuple | None
     order_all: np.ndarray | None = None
     points: tuple = ()
-    brk_all: np.ndarray | None = None
-    brk_gap: float = 0.0
     box: np.ndarray | None = None
     box_kmin: int = 0
 
@@ -203,11 +200,11 @@ def fill_crossings(
     else:
         grids = _k_junction_grid(qj, lab, float(gcell)) + tuple(fgrid)
     shared = FillShared(inputs, len(q), order, key_sorted, key_range, gcell, grids, box=box if odd == 0 else None, box_kmin=kb)
-    n_gaps, gaps, acc, c_q, why, gp, pb = _k_gaps(
+    n_gaps, gaps, acc, c_q, why, gp = _k_gaps(
         q, fam, idx, order, qj, jdir, lab, qs, *grids, float(gcell), float(cell_px), float(sigma_px),
         float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),
         int(options.anchor), float(np.deg2rad(options.max_turn_deg)),
-        float(options.lateral_px * cell_px), float(options.min_gap_cells * cell_px))
+        float(options.lateral_px * cell_px))
     stats["crossing_gaps"] = int(n_gaps)
     stats["crossing_gaps_rejected"] = {"anchors_missing": int(why[0]), "anchors_broken": int(why[1]), "anchors_crooked": int(why[2]),
                                        "turn": int(why[3]), "lateral": int(why[4]), "no_crossing": 0}
@@ -232,23 +229,18 @@ def fill_crossings(
     stats["samples_crossing_filled"] = int(len(q_new))
     # the order of q and these points, for the one-sided fill (decision 0149): each gap's points put in after its
     # first sample, checked against the keys
-    mg = float(options.min_gap_cells * cell_px)
-    order_all, brk_all, ok = _k_insert_order(order, key_sorted, key_range, gp, gaps, acc, float(cell_px), q_new, f_new, k_new, len(q), d1, d2,
-                                             q, fam, idx, pb, mg)
-    shared = replace(shared, order_all=order_all if ok else None, points=(q_new, f_new, k_new), brk_all=brk_all if ok else None,
-                     brk_gap=mg)
+    order_all, ok = _k_insert_order(order, key_sorted, key_range, gp, gaps, acc, float(cell_px), q_new, f_new, k_new, len(q), d1, d2)
+    shared = replace(shared, order_all=order_all if ok else None, points=(q_new, f_new, k_new))
     return CrossingPoints(q_new, f_new, k_new, j_new, stats, shared)
 
 
 @njit
-def _k_insert_order(order, key, key_range, gp, gaps, acc, cell, q_new, f_new, k_new, n0, d1, d2, q, fam, idx, pb, mg):
+def _k_insert_order(order, key, key_range, gp, gaps, acc, cell, q_new, f_new, k_new, n0, d1, d2):
     """`order_with_appended` for the points `_k_points` made (q_new, f_new, k_new; ids from n0 on) without a sort:
     each accepted gap's points (in `_k_points`' order) go after the gap's first sample, order[gp[g]]. Returns that
-    order, its runs' breaks at mg (`crossing_fill_one_sided._k_run_breaks` of q, fam, idx followed by the points;
-    pb: those of `order` alone, from `_k_gaps`) and ok: True when every point takes part in the order and lies
-    inside key_range (`_k_appended_keys`' test) and the keys of the result (the old ones `key`, the new ones by
-    `_order_key`) increase strictly. Then it is the one order by key, the merge `order_with_appended` returns;
-    else (ok False) the caller sorts."""
+    order and ok: True when every point takes part in the order and lies inside key_range (`_k_appended_keys`'
+    test) and the keys of the result (the old ones `key`, the new ones by `_order_key`) increase strictly. Then it
+    is the one order by key, the merge `order_with_appended` returns; else (ok False) the caller sorts."""
     kmin = key_range[0]
     kmax = key_range[1]
     tmax = key_range[2]
@@ -256,14 +248,10 @@ def _k_insert_order(order, key, key_range, gp, gaps, acc, cell, q_new, f_new, k_
     n = order.shape[0]
     m = q_new.shape[0]
     out = np.empty(n + m, np.intp)
-    brk = np.empty(n + m + 1, np.bool_)
-    brk[0] = True
-    brk[n + m] = True
     o = 0
     p = 0
     j = 0
     last = -np.inf
-    prev_new = False  # out[o − 1] is a new point (its break with the next sample is computed, not pb's)
     for g in range(gaps.shape[0]):
         if not acc[g]:
             continue
@@ -272,76 +260,39 @@ def _k_insert_order(order, key, key_range, gp, gaps, acc, cell, q_new, f_new, k_
             continue
         while p <= gp[g]:
             if not key[p] > last:
-                return out, brk, False
+                return out, False
             last = key[p]
             out[o] = order[p]
-            if o > 0:
-                brk[o] = _brk2(out[o - 1], order[p], q, fam, idx, q_new, f_new, k_new, n0, mg) if prev_new else pb[p]
-            prev_new = False
             o += 1
             p += 1
         for _ in range(n_pts):
             if j >= m:
-                return out, brk, False
+                return out, False
             f = f_new[j]
             k = k_new[j]
             if not ((f == 1 or f == 2) and np.isfinite(k) and np.isfinite(q_new[j, 0]) and np.isfinite(q_new[j, 1])):
-                return out, brk, False
+                return out, False
             if f == 1:
                 t = q_new[j, 0] * d1[0] + q_new[j, 1] * d1[1]
             else:
                 t = q_new[j, 0] * d2[0] + q_new[j, 1] * d2[1]
             if k < kmin or k > kmax or abs(t) > tmax:
-                return out, brk, False
+                return out, False
             kj = _order_key(f, k, t, kmin, kmax, span)
             if not kj > last:
-                return out, brk, False
+                return out, False
             last = kj
             out[o] = n0 + j
-            if o > 0:
-                brk[o] = _brk2(out[o - 1], n0 + j, q, fam, idx, q_new, f_new, k_new, n0, mg)
-            prev_new = True
             o += 1
             j += 1
     while p < n:
         if not key[p] > last:
-            return out, brk, False
+            return out, False
         last = key[p]
         out[o] = order[p]
-        if o > 0:
-            brk[o] = _brk2(out[o - 1], order[p], q, fam, idx, q_new, f_new, k_new, n0, mg) if prev_new else pb[p]
-        prev_new = False
         o += 1
         p += 1
-    return out, brk, j == m
-
-
-@njit(inline="always")
-def _brk2(a, b, q, fam, idx, q_new, f_new, k_new, n0, mg):
-    """`_k_run_breaks`' test between samples a and b of q followed by the new points (ids from n0 on)."""
-    if a < n0:
-        ax = q[a, 0]
-        ay = q[a, 1]
-        af = fam[a]
-        ak = idx[a]
-    else:
-        ax = q_new[a - n0, 0]
-        ay = q_new[a - n0, 1]
-        af = f_new[a - n0]
-        ak = k_new[a - n0]
-    if b < n0:
-        bx = q[b, 0]
-        by = q[b, 1]
-        bf = fam[b]
-        bk = idx[b]
-    else:
-        bx = q_new[b - n0, 0]
-        by = q_new[b - n0, 1]
-        bf = f_new[b - n0]
-        bk = k_new[b - n0]
-    dx = bx - ax
-    dy = by - ay
-    return bf != af or bk != ak or dx * dx + dy * dy > mg * mg
+    return out, j == m
 
 
 @njit(inline="always")
@@ -435,32 +386,27 @@ def _k_order_range_box(q, fam, idx, d1, d2, box_kmin, box_nk):
             box[f, k, 3] = -np.inf
     odd = 0
     for i in range(n):
-        f = fam[i]
-        k = idx[i]
-        if not ((f == 1 or f == 2) and np.isfinite(k)):
-            continue
-        x = q[i, 0]
-        y = q[i, 1]
-        fin = np.isfinite(x) and np.isfinite(y)
-        if box_nk > 0:
-            ki = int(k) - box_kmin
+        if box_nk > 0 and (fam[i] == 1 or fam[i] == 2) and np.isfinite(idx[i]):
+            ki = int(idx[i]) - box_kmin
             if ki >= 0 and ki < box_nk:
-                if fin:
-                    b = f - 1
-                    box[b, ki, 0] = min(box[b, ki, 0], x)
-                    box[b, ki, 1] = max(box[b, ki, 1], x)
-                    box[b, ki, 2] = min(box[b, ki, 2], y)
-                    box[b, ki, 3] = max(box[b, ki, 3], y)
+                x = q[i, 0]
+                y = q[i, 1]
+                if np.isfinite(x) and np.isfinite(y):
+                    f = fam[i] - 1
+                    box[f, ki, 0] = min(box[f, ki, 0], x)
+                    box[f, ki, 1] = max(box[f, ki, 1], x)
+                    box[f, ki, 2] = min(box[f, ki, 2], y)
+                    box[f, ki, 3] = max(box[f, ki, 3], y)
                 else:
                     odd += 1
-        if fin:
+        if (fam[i] == 1 or fam[i] == 2) and np.isfinite(idx[i]) and np.isfinite(q[i, 0]) and np.isfinite(q[i, 1]):
             sel[m] = i
-            if f == 1:
-                t[m] = x * d1[0] + y * d1[1]
+            if fam[i] == 1:
+                t[m] = q[i, 0] * d1[0] + q[i, 1] * d1[1]
             else:
-                t[m] = x * d2[0] + y * d2[1]
-            kmin = min(kmin, k)
-            kmax = max(kmax, k)
+                t[m] = q[i, 0] * d2[0] + q[i, 1] * d2[1]
+            kmin = min(kmin, idx[i])
+            kmax = max(kmax, idx[i])
             tmax = max(tmax, abs(t[m]))
             m += 1
     span = 2.0 * (tmax + 1.0)
@@ -776,16 +722,15 @@ def _curve_r(s, L, ka, ca, kb, cb):
 
 @njit
 def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, jitems, sx0, sy0, sgw, sgh, sstart, smid, sitems,
-            gcell, cell, sigma, min_gap, gap_max, half_gap, anchor, max_turn, lateral, brk_gap):
+            gcell, cell, sigma, min_gap, gap_max, half_gap, anchor, max_turn, lateral):
     """Steps 1–3 of the module doc over the ordered labelled samples `order`: the gaps between consecutive
     samples of one line, the two sides' tangent fits and tests, and the crossing in the gap. Returns the
     number of gaps, per gap that passed the tangent tests (G, 8) [first sample id, u (2), L, ka, ca, kb,
     cb] (u the chord's direction from the first sample, L its length, r = k·s + c each side's tangent
     across the chord), accepted (G,) bool (a labelled junction of this line names the gap), c_q (G, 2):
     where the other family's straight run crosses the curve (NaN where none), to be checked on the light
-    sheet, the counts of gaps rejected (5,): anchors missing, broken, crooked, turn, lateral, per gap its
-    position in order (G,), that of its first sample, and the runs' breaks of order at brk_gap (n + 1,)
-    (`crossing_fill_one_sided._k_run_breaks`) (decision 0149: the insertion and the one-sided fill's ends). The
+    sheet, the counts of gaps rejected (5,): anchors missing, broken, crooked, turn, lateral, and per gap its
+    position in order (G,), that of its first sample (decision 0149's insertion). The
     labelled junctions' grid (jx0 … jitems) and the samples' (sx0 … sitems): `_k_grids` on cell gcell."""
     n = order.shape[0]
     cap = max(n - 1, 1)  # at most one gap per consecutive pair
@@ -794,9 +739,6 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
     acc = np.empty(cap, np.bool_)  # each row written when it is made (below), not filled ahead
     c_q = np.empty((cap, 2))
     gp = np.empty(cap, np.intp)  # each gap's position in order (its first sample's)
-    pb = np.empty(n + 1, np.bool_)  # `_k_run_breaks(q, fam, idx, order, brk_gap)`, made in the same pass (decision 0149)
-    pb[0] = True
-    pb[n] = True
     G = 0
     n_gaps = 0
     hits = np.empty(sitems.shape[0], np.intp)  # the other family's samples in the disc, in search order
@@ -806,11 +748,9 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
         a = order[p]
         b = order[p + 1]
         if fam[a] != fam[b] or idx[a] != idx[b]:
-            pb[p + 1] = True
             continue
         dx = q[b, 0] - q[a, 0]
         dy = q[b, 1] - q[a, 1]
-        pb[p + 1] = dx * dx + dy * dy > brk_gap * brk_gap
         L = math.sqrt(dx * dx + dy * dy)
         if not (L > min_gap and L <= gap_max):
             continue
@@ -934,7 +874,7 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
                     c_q[G, 0] = q[a, 0] + s * ux - r * uy
                     c_q[G, 1] = q[a, 1] + s * uy + r * ux
         G += 1
-    return n_gaps, gaps[:G], acc[:G], c_q[:G], why, gp[:G], pb
+    return n_gaps, gaps[:G], acc[:G], c_q[:G], why, gp[:G]
 
 
 @njit

@@ -129,13 +129,10 @@ def fill_one_sided(
     fam = np.ascontiguousarray(np.asarray(family).reshape(-1), np.intp)
     idx = np.ascontiguousarray(index, np.float64).reshape(-1)
     d1, d2 = _family_directions(model)
-    brk = _NO_BREAKS
     if shared is not None and shared.n == len(q):
         order = shared.order  # nothing appended: the same arrays, the same order
     elif shared is not None and shared.order_all is not None and shared.n + len(shared.points[0]) == len(q):
         order = shared.order_all  # `fill_crossings`' own points appended: put in at their gaps (decision 0149)
-        if shared.brk_all is not None and shared.brk_gap == float(options.min_gap_cells * cell_px):
-            brk = shared.brk_all  # and the runs' breaks of that order
     elif shared is not None and shared.n < len(q):
         order = order_with_appended(shared, q, fam, idx, d1, d2)
     else:
@@ -161,7 +158,7 @@ def fill_one_sided(
         int(options.anchor), float(math.sin(math.radians(options.min_angle_deg))), float(options.lateral_px * cell_px),
         bool(options.through), bool(options.beyond),
         float(max(options.beyond_sigma * sigma_px, options.beyond_spacing * model.junction_step_cam_px * math.sin(math.radians(options.min_angle_deg)))),
-        bool(options.beyond_same), float(options.pull_sigma * sigma_px), brk)
+        bool(options.beyond_same), float(options.pull_sigma * sigma_px))
     stats["ends"] = int(n_ends)
     stats["ends_rejected"] = {"anchors": int(why[0]), "anchors_crooked": int(why[1]), "no_run": int(why[2]),
                               "beyond_reach": int(why[3]), "other_labels_disagree": int(why[4]),
@@ -270,7 +267,6 @@ def _run_crossing(ox, oy, ux, uy, mx, my, rad, f, qs, ks, x0, y0, gcell, gw, gh,
 
 UNLABELLED_K = UNLABELLED
 CONFLICT_K = -(2 ** 62)
-_NO_BREAKS = np.zeros(0, np.bool_)  # `_k_ends`' brk when the caller has none
 
 
 @njit
@@ -336,7 +332,7 @@ def _k_run_breaks(q, fam, idx, order, min_gap):
 
 @njit
 def _k_ends(q, fam, idx, order, qj, lab, qs, ks, jx0, jy0, jgw, jgh, jstart, jitems, sx0, sy0, sgw, sgh, sstart, smid, sitems, gcell,
-            cell, sigma, min_gap, gap_max, half_gap, anchor, sin_min, lateral, through, check_beyond, width, beyond_same, pull, brk):
+            cell, sigma, min_gap, gap_max, half_gap, anchor, sin_min, lateral, through, check_beyond, width, beyond_same, pull):
     """Steps 1–3 of the module doc. Returns the number of ends looked at, per end that passed the fit (E, 6)
     [end sample, ox, oy, ux, uy, s_c] (o the fit's point at the end sample, u the outward unit direction,
     s_c the crossing's centre along it), accepted (E,) (a labelled junction of this line ends it), c_q (E,
@@ -345,12 +341,10 @@ def _k_ends(q, fam, idx, order, qj, lab, qs, ks, jx0, jy0, jgw, jgh, jstart, jit
     off their line, no crossing run ahead, crossing beyond reach or too acute, the run's labels disagree, the
     line continues beyond with another index; and (8,) the no-run ends by `_run_crossing`'s reason, first
     disc (0–3) and re-centred disc (4–7). The labelled junctions' grid (jx0 … jitems) and the samples'
-    (sx0 … sitems): `crossing_fill._k_grids` on cell gcell. brk: `_k_run_breaks(q, fam, idx, order, min_gap)`
-    when the caller has it (`FillShared.brk_all`, decision 0149), else empty."""
+    (sx0 … sitems): `crossing_fill._k_grids` on cell gcell."""
     n = order.shape[0]
     # 1. the breaks between consecutive samples of the order (another line, or farther than min_gap)
-    if brk.shape[0] != n + 1:
-        brk = _k_run_breaks(q, fam, idx, order, min_gap)
+    brk = _k_run_breaks(q, fam, idx, order, min_gap)
     # every end is a sample with a break on that side: 2·Σbrk − 2 of them (brk[0] and brk[n] serve one side
     # each), the rows' capacity (2·n before: ~1.7 MB filled per pitch 16 frame for a few hundred ends)
     cap = 0

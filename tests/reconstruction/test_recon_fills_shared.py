@@ -1,7 +1,7 @@
 """Decision 0149: work the three point-adding steps of the label stage share (reconstruction.crossing_fill,
 crossing_fill_one_sided, border_fill). Each shared structure must equal the one it stands for, recomputed:
 the order of the samples with the two-sided fill's points put in at their gaps (`_k_insert_order`) = the full
-sort, and its runs' breaks = `_k_run_breaks`; the lines' boxes (`_k_order_range_box`, `_k_mark_box`) = the walk over every sample (`_k_mark_lines`);
+sort; the lines' boxes (`_k_order_range_box`, `_k_mark_box`) = the walk over every sample (`_k_mark_lines`);
 and the fills' points with the shared work = without it, bit for bit, on simulated frames."""
 
 from __future__ import annotations
@@ -67,8 +67,6 @@ def test_inserted_order_is_the_full_sort(frames, name):
     idx = np.concatenate([sl.index, cp.index])
     want = _full_order(q, fam, idx, model)
     assert np.array_equal(sh.order_all, want)
-    mg = OneSidedFillOptions().min_gap_cells * one["cell_px"]
-    assert sh.brk_gap == mg and np.array_equal(sh.brk_all, OS._k_run_breaks(q, fam, idx, want, mg))
     d1, d2 = CF._family_directions(model)
     assert np.array_equal(CF.order_with_appended(dataclasses.replace(sh, order_all=None), q, fam, idx, d1, d2), want)
 
@@ -114,19 +112,14 @@ def test_insertion_refuses_what_is_not_the_order():
     acc[::7] = False  # gaps not filled take no points
     keep = np.repeat(acc, [CF._n_gap_points(L, cell) for L in gaps[:, 3]])
     qn, fn, kn = qn[keep], fn[keep], kn[keep]
-    mg = 1.6
-    pb = OS._k_run_breaks(q, fam, idx, order, mg)
-    out, brk, ok = CF._k_insert_order(order, key_s, key_range, gp, gaps, acc, cell, qn, fn, kn, n0, d1, d2, q, fam, idx, pb, mg)
+    out, ok = CF._k_insert_order(order, key_s, key_range, gp, gaps, acc, cell, qn, fn, kn, n0, d1, d2)
     assert ok
     q_all, f_all, k_all = np.concatenate([q, qn]), np.concatenate([fam, fn]), np.concatenate([idx, kn])
     want = CF._sorted_by_key(*CF._k_order(q_all, f_all, k_all, d1, d2))
     assert np.array_equal(out, want)
-    # the runs' breaks of the result: those `_k_run_breaks` finds in it
-    assert np.array_equal(brk, OS._k_run_breaks(q_all, f_all, k_all, out, mg))
-    assert 0 < brk.sum() < len(brk)
 
     def refused(qn2, fn2, kn2):
-        return not CF._k_insert_order(order, key_s, key_range, gp, gaps, acc, cell, qn2, fn2, kn2, n0, d1, d2, q, fam, idx, pb, mg)[2]
+        return not CF._k_insert_order(order, key_s, key_range, gp, gaps, acc, cell, qn2, fn2, kn2, n0, d1, d2)[1]
 
     beyond = qn.copy()
     beyond[5] = q[order[pos[1] + 1]] + (q[order[pos[1] + 1]] - q[order[pos[1]]])  # past the gap's far sample
