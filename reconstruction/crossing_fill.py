@@ -99,7 +99,8 @@ class FillShared:
     insertion is not exact (the one-sided fill then calls `order_with_appended`). box: the lines' boxes of q
     (`_k_order_range_box` with the model's index range, for the border fill's test "which lines come near the
     border"; None when a labelled sample's position is not finite: the border fill then walks the samples);
-    box_kmin: the line index of its first column (the model's index_min)."""
+    box_kmin: the line index of its first column (the model's index_min). fam: the family of q as np.intp (the
+    one-sided fill's, decision 0149)."""
 
     inputs: tuple
     n: int
@@ -112,6 +113,7 @@ class FillShared:
     points: tuple = ()
     box: np.ndarray | None = None
     box_kmin: int = 0
+    fam: np.ndarray | None = None
 
 
 def _empty(stats: dict, shared: FillShared | None = None) -> CrossingPoints:
@@ -188,7 +190,8 @@ def fill_crossings(
     gap_max = _gap_max_px(sigma_px, cell_px, options)
     gcell = grid_cell_px(gap_max, sigma_px, cell_px)
     if len(order) < 2 * options.anchor + 2:
-        return _empty(stats, FillShared(inputs, len(q), order, key_sorted, key_range, gcell, None, box=box if odd == 0 else None, box_kmin=kb))
+        return _empty(stats, FillShared(inputs, len(q), order, key_sorted, key_range, gcell, None, box=box if odd == 0 else None, box_kmin=kb,
+                                        fam=fam))
     lab = np.ascontiguousarray(junction_labels, np.int64).reshape(-1, 2)
     qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
     jdir = np.ascontiguousarray(junction_dir, np.float64).reshape(-1, 2, 2)
@@ -199,7 +202,7 @@ def fill_crossings(
         grids = _k_grids(qj, lab, qs, fs, float(gcell))
     else:
         grids = _k_junction_grid(qj, lab, float(gcell)) + tuple(fgrid)
-    shared = FillShared(inputs, len(q), order, key_sorted, key_range, gcell, grids, box=box if odd == 0 else None, box_kmin=kb)
+    shared = FillShared(inputs, len(q), order, key_sorted, key_range, gcell, grids, box=box if odd == 0 else None, box_kmin=kb, fam=fam)
     n_gaps, gaps, acc, c_q, why, gp = _k_gaps(
         q, fam, idx, order, qj, jdir, lab, qs, *grids, float(gcell), float(cell_px), float(sigma_px),
         float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),
@@ -248,23 +251,28 @@ def _k_insert_order(order, key, key_range, gp, gaps, acc, cell, q_new, f_new, k_
     n = order.shape[0]
     m = q_new.shape[0]
     out = np.empty(n + m, np.intp)
+    # the old keys increase strictly (one tight pass); then between two gaps the old order is copied as it is and
+    # only the keys around each gap's points are compared
+    for p in range(1, n):
+        if not key[p] > key[p - 1]:
+            return out, False
     o = 0
     p = 0
     j = 0
-    last = -np.inf
     for g in range(gaps.shape[0]):
         if not acc[g]:
             continue
         n_pts = _n_gap_points(gaps[g, 3], cell)
         if n_pts == 0:
             continue
-        while p <= gp[g]:
-            if not key[p] > last:
-                return out, False
-            last = key[p]
-            out[o] = order[p]
-            o += 1
-            p += 1
+        pg = gp[g]
+        if pg < p or pg >= n:
+            return out, False
+        c = pg + 1 - p
+        out[o:o + c] = order[p:pg + 1]
+        o += c
+        p = pg + 1
+        last = key[pg]
         for _ in range(n_pts):
             if j >= m:
                 return out, False
@@ -285,13 +293,9 @@ def _k_insert_order(order, key, key_range, gp, gaps, acc, cell, q_new, f_new, k_
             out[o] = n0 + j
             o += 1
             j += 1
-    while p < n:
-        if not key[p] > last:
+        if p < n and not key[p] > last:
             return out, False
-        last = key[p]
-        out[o] = order[p]
-        o += 1
-        p += 1
+    out[o:] = order[p:]
     return out, j == m
 
 

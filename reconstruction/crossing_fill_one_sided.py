@@ -146,11 +146,11 @@ def fill_one_sided(
                                         min_angle_deg=options.min_angle_deg)
     gcell = grid_cell_px(gap_max, sigma_px, cell_px)
     qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
-    fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
     ks = np.ascontiguousarray(index_samples, np.float64).reshape(-1)
     if shared is not None and shared.grids is not None and shared.gcell == gcell:
         grids = shared.grids
     else:
+        fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
         grids = _k_grids(qj, lab, qs, fs, float(gcell))
     n_ends, ends, acc, c_q, m_other, why, why_run = _k_ends(
         q, fam, idx, order, qj, lab, qs, ks, *grids, float(gcell), float(cell_px), float(sigma_px),
@@ -545,10 +545,11 @@ def with_one_sided(
         sh = replace(sh, order_all=None)  # other points than `fill_crossings`' own: their order is not known
     if cp is not None and len(cp.index):
         q_all = np.concatenate([np.asarray(q, np.float64).reshape(-1, 2), cp.q])
-        f_all = np.concatenate([fam.astype(np.intp), cp.family.astype(np.intp)])
+        f0 = sh.fam if sh is not None and sh.fam is not None else fam.astype(np.intp)  # the same values (decision 0149)
+        f_all = np.concatenate([f0, cp.family.astype(np.intp, copy=False)])
         k_all = np.concatenate([np.asarray(index, np.float64), cp.index])
         j_all = np.concatenate([np.asarray(junction, np.int64), cp.junction])
     else:
-        q_all, f_all, k_all, j_all = q, fam, index, junction
+        q_all, f_all, k_all, j_all = q, (sh.fam if sh is not None and sh.fam is not None else fam), index, junction
     op = fill_one_sided(q_all, f_all, k_all, j_all, index_samples=index, shared=sh, **kwargs)
     return appended(cp, op, "samples_one_sided_filled", "one_sided", cp.shared if cp is not None else None)
