@@ -650,6 +650,10 @@ def appended(cp: CrossingPoints | None, new: CrossingPoints, count_key: str, sta
     stats[stats_key] = new.stats
     if cp is None or len(cp.index) == 0:
         return CrossingPoints(new.q, new.family, new.index, new.junction, stats, shared)
+    if (len(new.index) == 0 and len(new.q) == 0 and len(new.family) == 0 and len(new.junction) == 0
+            and all(np.result_type(a, b) == a.dtype for a, b in ((cp.q, new.q), (cp.index, new.index), (cp.junction, new.junction)))):
+        # nothing new: cp's own arrays (the concatenation would copy them, same values and dtypes; decision 0149)
+        return CrossingPoints(cp.q, cp.family, cp.index, cp.junction, stats, shared)
     return CrossingPoints(np.concatenate([cp.q, new.q]), np.concatenate([cp.family, new.family.astype(cp.family.dtype)]),
                           np.concatenate([cp.index, new.index]), np.concatenate([cp.junction, new.junction]), stats, shared)
 

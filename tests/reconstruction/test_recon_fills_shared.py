@@ -246,3 +246,23 @@ def test_beyond_reads_only_the_cells_of_its_box():
             assert OS._beyond(*args) == want
             n_diff += want != 0
     assert n_diff > 500  # most regions hold samples
+
+
+def test_appending_nothing_keeps_the_points():
+    """`appended` with no new point returns the points and stats the concatenation gives (values, dtypes,
+    shapes), without copying; with new points, the concatenation."""
+    rng = np.random.default_rng(2)
+    cp = CF.CrossingPoints(rng.uniform(0, 100, (50, 2)), rng.integers(1, 3, 50).astype(np.intp), rng.integers(-5, 5, 50).astype(float),
+                           rng.integers(-1, 9, 50).astype(np.int64), {"samples_crossing_filled": 50})
+    none = CF.CrossingPoints(np.zeros((0, 2)), np.zeros(0, np.intp), np.zeros(0), np.zeros(0, np.int64), {"n": 0})
+    some = CF.CrossingPoints(rng.uniform(0, 100, (3, 2)), np.ones(3, np.intp), np.zeros(3), np.zeros(3, np.int64), {"n": 3})
+    for new in (none, some):
+        got = CF.appended(cp, new, "n", "extra")
+        for f in ("q", "family", "index", "junction"):
+            want = np.concatenate([getattr(cp, f), getattr(new, f).astype(getattr(cp, f).dtype)])
+            assert np.array_equal(getattr(got, f), want) and getattr(got, f).dtype == want.dtype and getattr(got, f).shape == want.shape
+        assert got.stats == {"samples_crossing_filled": 50, "n": new.stats["n"], "extra": new.stats}
+    assert CF.appended(cp, none, "n", "extra").q is cp.q
+    # float32 points would be widened by the concatenation: then it is done
+    cp32 = dataclasses.replace(cp, q=cp.q.astype(np.float32))
+    assert CF.appended(cp32, none, "n", "extra").q.dtype == np.float64
