@@ -97,7 +97,7 @@ class FillShared:
     arrays q, family, index of its `CrossingPoints`), those points put in at their gaps (`_k_insert_order`,
     decision 0149): `order_with_appended`'s result for them, without its sort and merge; None where that
     insertion is not exact (the one-sided fill then calls `order_with_appended`). box: the lines' boxes of q
-    (`_k_order_range_box` with the model's index range, for the border fill's test "which lines come near the
+    (`_k_gaps`' running boxes on the model's index range, for the border fill's test "which lines come near the
     border"; None when a labelled sample's position is not finite: the border fill then walks the samples);
     box_kmin: the line index of its first column (the model's index_min). fam: the family of q as np.intp (the
     one-sided fill's, decision 0149)."""
@@ -185,13 +185,12 @@ def fill_crossings(
     # 1. each line's labelled samples in order along its family's direction (the rig's prediction)
     d1, d2 = _family_directions(model)
     kb = int(model.index_min)
-    sel, key, key_range, box, odd = _k_order_range_box(q, fam, idx, d1, d2, kb, int(model.index_max) - kb + 1)
+    sel, key, key_range, _box, odd = _k_order_range_box(q, fam, idx, d1, d2, kb, 0)
     order, key_sorted = _sorted_with_keys(sel, key)
     gap_max = _gap_max_px(sigma_px, cell_px, options)
     gcell = grid_cell_px(gap_max, sigma_px, cell_px)
     if len(order) < 2 * options.anchor + 2:
-        return _empty(stats, FillShared(inputs, len(q), order, key_sorted, key_range, gcell, None, box=box if odd == 0 else None, box_kmin=kb,
-                                        fam=fam))
+        return _empty(stats, FillShared(inputs, len(q), order, key_sorted, key_range, gcell, None, fam=fam))
     lab = np.ascontiguousarray(junction_labels, np.int64).reshape(-1, 2)
     qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
     jdir = np.ascontiguousarray(junction_dir, np.float64).reshape(-1, 2, 2)
@@ -202,12 +201,12 @@ def fill_crossings(
         grids = _k_grids(qj, lab, qs, fs, float(gcell))
     else:
         grids = _k_junction_grid(qj, lab, float(gcell)) + tuple(fgrid)
-    shared = FillShared(inputs, len(q), order, key_sorted, key_range, gcell, grids, box=box if odd == 0 else None, box_kmin=kb, fam=fam)
-    n_gaps, gaps, acc, c_q, why, gp = _k_gaps(
+    n_gaps, gaps, acc, c_q, why, gp, box = _k_gaps(
         q, fam, idx, order, qj, jdir, lab, qs, *grids, float(gcell), float(cell_px), float(sigma_px),
         float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),
         int(options.anchor), float(np.deg2rad(options.max_turn_deg)),
-        float(options.lateral_px * cell_px))
+        float(options.lateral_px * cell_px), kb, int(model.index_max) - kb + 1)
+    shared = FillShared(inputs, len(q), order, key_sorted, key_range, gcell, grids, box=box if odd == 0 else None, box_kmin=kb, fam=fam)
     stats["crossing_gaps"] = int(n_gaps)
     stats["crossing_gaps_rejected"] = {"anchors_missing": int(why[0]), "anchors_broken": int(why[1]), "anchors_crooked": int(why[2]),
                                        "turn": int(why[3]), "lateral": int(why[4]), "no_crossing": 0}
@@ -371,9 +370,9 @@ def _k_order_range(q, fam, idx, d1, d2):
 def _k_order_range_box(q, fam, idx, d1, d2, box_kmin, box_nk):
     """`_k_order_range`, and in the same pass each line's box (decision 0149, for the border fill's
     `_k_mark_box`): box (2, box_nk, 4) [smallest x, largest x, smallest y, largest y] of the samples in the
-    order of line (family f, index k) at box[f − 1, int(k) − box_kmin] (±inf where none); odd: the number of
-    samples `border_fill._k_mark_lines` would look at (family 1 or 2, finite index, int(k) − box_kmin in
-    [0, box_nk)) that the box leaves out (a position not finite)."""
+    order of line (family f, index k) at box[f − 1, int(k) − box_kmin] (±inf where none; `fill_crossings` takes
+    them from `_k_gaps`, box_nk 0 here); odd: the number of labelled samples (family 1 or 2, finite index) the
+    order and the box leave out (a position not finite), which `border_fill._k_mark_lines` would look at."""
     n = q.shape[0]
     sel = np.empty(n, np.intp)
     m = 0
@@ -390,19 +389,19 @@ def _k_order_range_box(q, fam, idx, d1, d2, box_kmin, box_nk):
             box[f, k, 3] = -np.inf
     odd = 0
     for i in range(n):
-        if box_nk > 0 and (fam[i] == 1 or fam[i] == 2) and np.isfinite(idx[i]):
-            ki = int(idx[i]) - box_kmin
-            if ki >= 0 and ki < box_nk:
-                x = q[i, 0]
-                y = q[i, 1]
-                if np.isfinite(x) and np.isfinite(y):
+        if (fam[i] == 1 or fam[i] == 2) and np.isfinite(idx[i]):
+            x = q[i, 0]
+            y = q[i, 1]
+            if not (np.isfinite(x) and np.isfinite(y)):
+                odd += 1
+            elif box_nk > 0:
+                ki = int(idx[i]) - box_kmin
+                if ki >= 0 and ki < box_nk:
                     f = fam[i] - 1
                     box[f, ki, 0] = min(box[f, ki, 0], x)
                     box[f, ki, 1] = max(box[f, ki, 1], x)
                     box[f, ki, 2] = min(box[f, ki, 2], y)
                     box[f, ki, 3] = max(box[f, ki, 3], y)
-                else:
-                    odd += 1
         if (fam[i] == 1 or fam[i] == 2) and np.isfinite(idx[i]) and np.isfinite(q[i, 0]) and np.isfinite(q[i, 1]):
             sel[m] = i
             if fam[i] == 1:
@@ -730,15 +729,17 @@ def _curve_r(s, L, ka, ca, kb, cb):
 
 @njit
 def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, jitems, sx0, sy0, sgw, sgh, sstart, smid, sitems,
-            gcell, cell, sigma, min_gap, gap_max, half_gap, anchor, max_turn, lateral):
+            gcell, cell, sigma, min_gap, gap_max, half_gap, anchor, max_turn, lateral, box_kmin, box_nk):
     """Steps 1–3 of the module doc over the ordered labelled samples `order`: the gaps between consecutive
     samples of one line, the two sides' tangent fits and tests, and the crossing in the gap. Returns the
     number of gaps, per gap that passed the tangent tests (G, 8) [first sample id, u (2), L, ka, ca, kb,
     cb] (u the chord's direction from the first sample, L its length, r = k·s + c each side's tangent
     across the chord), accepted (G,) bool (a labelled junction of this line names the gap), c_q (G, 2):
     where the other family's straight run crosses the curve (NaN where none), to be checked on the light
-    sheet, the counts of gaps rejected (5,): anchors missing, broken, crooked, turn, lateral, and per gap its
-    position in order (G,), that of its first sample (decision 0149's insertion). The
+    sheet, the counts of gaps rejected (5,): anchors missing, broken, crooked, turn, lateral, per gap its
+    position in order (G,), that of its first sample (decision 0149's insertion), and the lines' boxes of the
+    ordered samples (2, box_nk, 4), as `_k_order_range_box`'s, kept as running extremes along each line's run of
+    the order (decision 0149: the border fill's lines near the border). The
     labelled junctions' grid (jx0 … jitems) and the samples' (sx0 … sitems): `_k_grids` on cell gcell."""
     n = order.shape[0]
     cap = max(n - 1, 1)  # at most one gap per consecutive pair
@@ -747,6 +748,17 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
     acc = np.empty(cap, np.bool_)  # each row written when it is made (below), not filled ahead
     c_q = np.empty((cap, 2))
     gp = np.empty(cap, np.intp)  # each gap's position in order (its first sample's)
+    box = np.empty((2, box_nk, 4))
+    for bf in range(2):
+        for bk in range(box_nk):
+            box[bf, bk, 0] = np.inf
+            box[bf, bk, 1] = -np.inf
+            box[bf, bk, 2] = np.inf
+            box[bf, bk, 3] = -np.inf
+    rx0 = np.inf
+    rx1 = -np.inf
+    ry0 = np.inf
+    ry1 = -np.inf
     G = 0
     n_gaps = 0
     hits = np.empty(sitems.shape[0], np.intp)  # the other family's samples in the disc, in search order
@@ -755,7 +767,16 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
     for p in range(n - 1):
         a = order[p]
         b = order[p + 1]
+        rx0 = min(rx0, q[a, 0])
+        rx1 = max(rx1, q[a, 0])
+        ry0 = min(ry0, q[a, 1])
+        ry1 = max(ry1, q[a, 1])
         if fam[a] != fam[b] or idx[a] != idx[b]:
+            _box_flush(box, fam[a], idx[a], box_kmin, rx0, rx1, ry0, ry1)
+            rx0 = np.inf
+            rx1 = -np.inf
+            ry0 = np.inf
+            ry1 = -np.inf
             continue
         dx = q[b, 0] - q[a, 0]
         dy = q[b, 1] - q[a, 1]
@@ -882,7 +903,21 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
                     c_q[G, 0] = q[a, 0] + s * ux - r * uy
                     c_q[G, 1] = q[a, 1] + s * uy + r * ux
         G += 1
-    return n_gaps, gaps[:G], acc[:G], c_q[:G], why, gp[:G]
+    if n > 0:
+        a = order[n - 1]
+        _box_flush(box, fam[a], idx[a], box_kmin, min(rx0, q[a, 0]), max(rx1, q[a, 0]), min(ry0, q[a, 1]), max(ry1, q[a, 1]))
+    return n_gaps, gaps[:G], acc[:G], c_q[:G], why, gp[:G], box
+
+
+@njit(inline="always")
+def _box_flush(box, f, k, box_kmin, x0, x1, y0, y1):
+    """A line's run's extremes into its box (`_k_gaps`)."""
+    ki = int(k) - box_kmin
+    if ki >= 0 and ki < box.shape[1]:
+        box[f - 1, ki, 0] = min(box[f - 1, ki, 0], x0)
+        box[f - 1, ki, 1] = max(box[f - 1, ki, 1], x1)
+        box[f - 1, ki, 2] = min(box[f - 1, ki, 2], y0)
+        box[f - 1, ki, 3] = max(box[f - 1, ki, 3], y1)
 
 
 @njit

@@ -67,6 +67,11 @@ def test_inserted_order_is_the_full_sort(frames, name):
     idx = np.concatenate([sl.index, cp.index])
     want = _full_order(q, fam, idx, model)
     assert np.array_equal(sh.order_all, want)
+    # the lines' boxes `_k_gaps` kept along the order = those of every labelled sample
+    kb = int(model.index_min)
+    box = CF._k_order_range_box(sl.q, obs.family.astype(np.intp), sl.index, *CF._family_directions(model), kb, int(model.index_max) - kb + 1)[3]
+    assert sh.box is not None and sh.box_kmin == kb and np.array_equal(sh.box, box)
+    assert np.isfinite(box).all(axis=2).sum() >= 10
     d1, d2 = CF._family_directions(model)
     assert np.array_equal(CF.order_with_appended(dataclasses.replace(sh, order_all=None), q, fam, idx, d1, d2), want)
 
