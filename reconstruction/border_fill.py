@@ -106,7 +106,8 @@ def _k_mark_lines(q, fam, idx, xmax, ymax, lim, kmin, mark):
 
 @njit
 def _k_mark_box(box, xmax, ymax, lim, mark):
-    """`_k_mark_lines` from the lines' boxes (`crossing_fill._k_order_range_box`, same kmin and shape): a line
+    """`_k_mark_lines` from the lines' boxes (`FillShared.box`: `crossing_fill._k_gaps`' running boxes, equal to
+    `crossing_fill._k_order_range_box`'s; same kmin and shape): a line
     has a sample within lim of the image box when its box does, min(smallest x, xmax − largest x, smallest y,
     ymax − largest y) ≤ lim, the least of its samples' distances (the subtraction is monotone in the position,
     so xmax − largest x is the least xmax − x bit for bit). Decision 0149."""
