@@ -41,8 +41,10 @@ from reconstruction.surface_labels import label_from_surface
 from reconstruction.limb_lines import label_beside_lines
 from reconstruction.residual_clusters import elevated_pieces, kept_adjacency
 from reconstruction.rigmodel import UNLABELLED, RigModel
-from reconstruction.seed_brightness import drop_seeds_off_brightness
+from reconstruction.seed_brightness import spread_checked_seeds
 from reconstruction.trace_ends import cut_facing_ends, cut_far_ends
+
+_NO_RIDGE = np.zeros(0, np.float32)  # spread_checked_seeds without the check (decision 0150)
 
 
 @dataclass(frozen=True)
@@ -1492,11 +1494,14 @@ def label_samples(
         else:
             order, piece, ts, tangent, sid = tp.order, tp.piece, tp.ts, tp.tangent, tp.sid
         stats["traces"] = int(piece[-1]) + 1
-        if options.seed_brightness and ridge is not None and len(ridge) == P:
-            # a junction's seeds on a piece of another surface, beyond a depth edge at the junction (decision 0146)
-            stats["seeds_off_brightness"] = int(drop_seeds_off_brightness(sid, piece, fam, seed, seed_jid, ridge,
-                                                                          float(options.seed_brightness_share), UNLABELLED))
-        got, n_seeded, n_conflicting = _k.spread_seeds(sid, piece, ts, seed, seed_jid, index, UNLABELLED)
+        # a junction's seeds on a piece of another surface, beyond a depth edge at the junction, taken back (decision
+        # 0146), and the seeds spread along the pieces: one pass over the positions (decision 0150)
+        check = bool(options.seed_brightness and ridge is not None and len(ridge) == P)
+        got, n_seeded, n_conflicting, n_off = spread_checked_seeds(
+            sid, piece, ts, fam, seed, seed_jid, index, ridge if check else _NO_RIDGE, float(options.seed_brightness_share),
+            check, UNLABELLED)
+        if check:
+            stats["seeds_off_brightness"] = int(n_off)
         stats["traces_seeded"] = int(n_seeded)
         stats["traces_conflicting"] = int(n_conflicting)
         guard = None
