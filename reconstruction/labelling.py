@@ -1448,7 +1448,7 @@ def label_samples(
     projections stay with `RigModel`. Times: benchmarks/results/bench_reconstruction.md.
     """
     q = np.asarray(obs.q, np.float64).reshape(-1, 2)
-    # the families (intp), index (NaN), q_out (a copy of q), seed_jid (−1) and seed (UNLABELLED): one pass
+    # the families (int8, decision 0150), index (NaN), q_out (a copy of q), seed_jid (−1) and seed (UNLABELLED): one pass
     fam, index, q_out, seed_jid, seed = _k.label_arrays(q, np.asarray(obs.family).reshape(-1), UNLABELLED)
     P = len(q)
     stats = {"samples": P, "mixing_zone": 0, "snapped_to_junction_line": 0, "seeds": 0, "seed_conflicts": 0, "traces": 0,
