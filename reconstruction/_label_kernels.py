@@ -2235,7 +2235,7 @@ def gap_candidates(valid, index, sid, piece, cut_samples):
         if state[s] == 0:
             state[s] = 1
         piece_of[s] = piece[k]
-        if math.isfinite(index[s]):
+        if not lab_piece[piece[k]] and math.isfinite(index[s]):  # a labelled piece's index is not read again (decision 0150)
             lab_piece[piece[k]] = True
     out = np.empty(P, np.intp)
     m = 0

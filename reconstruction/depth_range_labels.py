@@ -93,7 +93,7 @@ def _k_open_positions(sid, piece, index, n_p, min_samples):
     lab = np.zeros(n_p, np.bool_)
     for a in range(n):
         size[piece[a]] += 1
-        if math.isfinite(index[sid[a]]):
+        if not lab[piece[a]] and math.isfinite(index[sid[a]]):  # a labelled piece's index is not read again (decision 0150)
             lab[piece[a]] = True
     m = 0
     for a in range(n):
