@@ -1448,7 +1448,8 @@ def label_samples(
     projections stay with `RigModel`. Times: benchmarks/results/bench_reconstruction.md.
     """
     q = np.asarray(obs.q, np.float64).reshape(-1, 2)
-    # the families (int8, decision 0150), index (NaN), q_out (a copy of q), seed_jid (−1) and seed (UNLABELLED): one pass
+    # the families (int8), index (NaN; float32 inside, the integer line indices exact, returned as float64: decision 0150),
+    # q_out (a copy of q), seed_jid (−1) and seed (UNLABELLED): one pass
     fam, index, q_out, seed_jid, seed = _k.label_arrays(q, np.asarray(obs.family).reshape(-1), UNLABELLED)
     P = len(q)
     stats = {"samples": P, "mixing_zone": 0, "snapped_to_junction_line": 0, "seeds": 0, "seed_conflicts": 0, "traces": 0,
@@ -1460,7 +1461,7 @@ def label_samples(
     cell = prep.cell
     valid = prep.valid
     if prep.n_valid == 0:
-        return SampleLabels(index, q_out, seed_jid, stats)
+        return SampleLabels(index.astype(np.float64), q_out, seed_jid, stats)
     # 1. The mixing zone (prepare_samples).
     near_other = prep.near_other
     # 2. Seeds: samples near a labelled junction, on its fitted line of their family.
@@ -1649,4 +1650,4 @@ def label_samples(
         if guard is not None:
             stats["samples_ambiguity_guard"] = guard.n
     stats["samples_labelled"] = int(_k.drop_unlabelled_junctions(index, seed_jid))
-    return SampleLabels(index, q_out, seed_jid, stats)
+    return SampleLabels(index.astype(np.float64), q_out, seed_jid, stats)
