@@ -2720,13 +2720,14 @@ def label_arrays(q, family, unlabelled):
     """label_samples' per-sample arrays, in one pass: the families as int8 (0, 1, 2: a byte per sample instead of
     eight keeps the array in cache for the steps' scattered reads, decision 0150), index (P,) NaN as float32 (every
     value a step writes is a line index, an integer, exact in float32; label_samples returns it as float64, decision
-    0150), q_out (P, 2) a copy of q, seed_jid (P,) −1 and seed (P,) `unlabelled` (int64)."""
+    0150), q_out (P, 2) a copy of q, seed_jid (P,) −1 and seed (P,) `unlabelled` (both int32: junction ids and line
+    indices, `unlabelled` the int32 minimum; label_samples returns seed_jid as int64, decision 0150)."""
     P = q.shape[0]
     fam = np.empty(P, np.int8)
     index = np.empty(P, np.float32)
     q_out = np.empty((P, 2))
-    seed_jid = np.empty(P, np.int64)
-    seed = np.empty(P, np.int64)
+    seed_jid = np.empty(P, np.int32)
+    seed = np.empty(P, np.int32)
     for i in range(P):
         fam[i] = family[i]
         index[i] = np.nan

@@ -1461,7 +1461,7 @@ def label_samples(
     cell = prep.cell
     valid = prep.valid
     if prep.n_valid == 0:
-        return SampleLabels(index.astype(np.float64), q_out, seed_jid, stats)
+        return SampleLabels(index.astype(np.float64), q_out, seed_jid.astype(np.int64), stats)
     # 1. The mixing zone (prepare_samples).
     near_other = prep.near_other
     # 2. Seeds: samples near a labelled junction, on its fitted line of their family.
@@ -1650,4 +1650,4 @@ def label_samples(
         if guard is not None:
             stats["samples_ambiguity_guard"] = guard.n
     stats["samples_labelled"] = int(_k.drop_unlabelled_junctions(index, seed_jid))
-    return SampleLabels(index.astype(np.float64), q_out, seed_jid, stats)
+    return SampleLabels(index.astype(np.float64), q_out, seed_jid.astype(np.int64), stats)
