@@ -1265,8 +1265,9 @@ def sample_grid_split(q, valid, fam, sid, cell):
 
 @njit
 def positions_of(P, sid):
-    """(P,) intp: each sample's trace position (sid[k] = s ⇒ pos_of[s] = k; −1 off the traces)."""
-    pos_of = np.full(P, -1, np.intp)
+    """(P,) int32: each sample's trace position (sid[k] = s ⇒ pos_of[s] = k; −1 off the traces). int32: the steps read
+    it scattered, by sample (decision 0150)."""
+    pos_of = np.full(P, -1, np.int32)
     for k in range(sid.shape[0]):
         pos_of[sid[k]] = k
     return pos_of
