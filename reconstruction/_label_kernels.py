@@ -799,8 +799,8 @@ def junction_seeds(q, fam, valid, near_other, qj, labelled, lab, jdir, radius, s
         cpy[k] = np.intp(math.floor((qj[labelled[k], 1] - loy) / radius)) + 1
         gw = max(gw, cpx[k])
         gh = max(gh, cpy[k])
-    cqx = np.empty(P, np.intp)
-    cqy = np.empty(P, np.intp)
+    cqx = np.empty(P, np.int32)  # (int32: decision 0150)
+    cqy = np.empty(P, np.int32)
     for i in range(P):
         if valid[i]:
             cqx[i] = np.intp(math.floor((q[i, 0] - lox) / radius)) + 1
@@ -2230,7 +2230,7 @@ def gap_candidates(valid, index, sid, piece, cut_samples):
         state[cut_samples[k]] = 2
     npc = piece[n - 1] + 1 if n else 0
     lab_piece = np.zeros(npc, np.bool_)
-    piece_of = np.empty(P, np.int64)
+    piece_of = np.empty(P, np.int32)  # (int32: decision 0150)
     for k in range(n):
         s = sid[k]
         if state[s] == 0:

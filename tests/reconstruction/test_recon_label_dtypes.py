@@ -14,9 +14,11 @@ import numpy as np
 
 
 def _wide(frame):
-    """The frame with its trace positions as intp, and label_arrays patched to give the wide arrays."""
+    """The frame with each sample's trace position as intp (built again, not converted)."""
     tp = frame.prep.traces
-    prep = replace(frame.prep, traces=replace(tp, pos_of=tp.pos_of.astype(np.intp)))
+    pos_of = np.full(len(tp.pos_of), -1, np.intp)
+    pos_of[tp.sid] = np.arange(len(tp.sid))
+    prep = replace(frame.prep, traces=replace(tp, pos_of=pos_of))
     return replace(frame, prep=prep)
 
 
@@ -29,15 +31,23 @@ def test_narrow_arrays_give_the_wide_arrays_results(monkeypatch):
     assert frame.prep.traces is not None and frame.prep.traces.pos_of.dtype == np.int32
     narrow = finish_frame(frame)
     seen = {}
-    orig_arrays, orig_pos = K.label_arrays, K.positions_of
+    orig_arrays = K.label_arrays
 
     def label_arrays(q, family, unlabelled):
+        # the arrays as they were before decision 0150 (NumPy, wide types), not converted from the narrow ones
         fam, index, q_out, seed_jid, seed = orig_arrays(q, family, unlabelled)
         seen["narrow"] = (fam.dtype, index.dtype, seed_jid.dtype, seed.dtype)
-        return fam.astype(np.intp), index.astype(np.float64), q_out, seed_jid.astype(np.int64), seed.astype(np.int64)
+        P = len(q)
+        return (np.asarray(family).astype(np.intp), np.full(P, np.nan), np.array(q, np.float64), np.full(P, -1, np.int64),
+                np.full(P, unlabelled, np.int64))
 
     monkeypatch.setattr(K, "label_arrays", label_arrays)
-    monkeypatch.setattr(K, "positions_of", lambda P, sid: orig_pos(P, sid).astype(np.intp))
+    def positions_of(P, sid):
+        pos_of = np.full(P, -1, np.intp)
+        pos_of[sid] = np.arange(len(sid))
+        return pos_of
+
+    monkeypatch.setattr(K, "positions_of", positions_of)
     wide = finish_frame(_wide(frame))
     assert seen["narrow"] == (np.dtype(np.int8), np.dtype(np.float32), np.dtype(np.int32), np.dtype(np.int32))
     assert narrow.n_points > 10000 and narrow.n_points == wide.n_points
