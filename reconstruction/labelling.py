@@ -45,6 +45,8 @@ from reconstruction.seed_brightness import spread_checked_seeds
 from reconstruction.trace_ends import cut_facing_ends, cut_far_ends
 
 _NO_RIDGE = np.zeros(0, np.float32)  # spread_checked_seeds without the check (decision 0150)
+# label_samples' seeds are int32 (decision 0150): the sentinel must be one
+assert np.iinfo(np.int32).min <= UNLABELLED <= np.iinfo(np.int32).max
 
 
 @dataclass(frozen=True)
