@@ -27,12 +27,14 @@ def piece_ends(q, sid, piece, tangent, index, seed_jid, n_p, anchor):
         if first[p] < 0:
             first[p] = k
         last[p] = k
+        if jsrc[p] >= 0:
+            continue  # labelled, with its junction: the piece's later samples change nothing here (decision 0150)
         s = sid[k]
         if math.isfinite(index[s]):
             if not labelled[p]:
                 labelled[p] = True
                 val[p] = index[s]
-            if jsrc[p] < 0 and seed_jid[s] >= 0:
+            if seed_jid[s] >= 0:
                 jsrc[p] = seed_jid[s]
     e = np.empty((2 * n_p, 2))
     u = np.empty((2 * n_p, 2))

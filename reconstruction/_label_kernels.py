@@ -799,8 +799,8 @@ def junction_seeds(q, fam, valid, near_other, qj, labelled, lab, jdir, radius, s
         cpy[k] = np.intp(math.floor((qj[labelled[k], 1] - loy) / radius)) + 1
         gw = max(gw, cpx[k])
         gh = max(gh, cpy[k])
-    cqx = np.empty(P, np.intp)
-    cqy = np.empty(P, np.intp)
+    cqx = np.empty(P, np.int32)  # (int32: decision 0150)
+    cqy = np.empty(P, np.int32)
     for i in range(P):
         if valid[i]:
             cqx[i] = np.intp(math.floor((q[i, 0] - lox) / radius)) + 1
@@ -1265,8 +1265,9 @@ def sample_grid_split(q, valid, fam, sid, cell):
 
 @njit
 def positions_of(P, sid):
-    """(P,) intp: each sample's trace position (sid[k] = s ⇒ pos_of[s] = k; −1 off the traces)."""
-    pos_of = np.full(P, -1, np.intp)
+    """(P,) int32: each sample's trace position (sid[k] = s ⇒ pos_of[s] = k; −1 off the traces). int32: the steps read
+    it scattered, by sample (decision 0150)."""
+    pos_of = np.full(P, -1, np.int32)
     for k in range(sid.shape[0]):
         pos_of[sid[k]] = k
     return pos_of
@@ -2229,13 +2230,13 @@ def gap_candidates(valid, index, sid, piece, cut_samples):
         state[cut_samples[k]] = 2
     npc = piece[n - 1] + 1 if n else 0
     lab_piece = np.zeros(npc, np.bool_)
-    piece_of = np.empty(P, np.int64)
+    piece_of = np.empty(P, np.int32)  # (int32: decision 0150)
     for k in range(n):
         s = sid[k]
         if state[s] == 0:
             state[s] = 1
         piece_of[s] = piece[k]
-        if math.isfinite(index[s]):
+        if not lab_piece[piece[k]] and math.isfinite(index[s]):  # a labelled piece's index is not read again (decision 0150)
             lab_piece[piece[k]] = True
     out = np.empty(P, np.intp)
     m = 0
@@ -2717,14 +2718,17 @@ def crossing_hits_write(sel, o_sel, kk, res, z, tol, z_min, z_max, k_end, jid_en
 
 @njit
 def label_arrays(q, family, unlabelled):
-    """label_samples' per-sample arrays, in one pass: the families as intp, index (P,) NaN, q_out (P, 2) a copy
-    of q, seed_jid (P,) −1 and seed (P,) `unlabelled` (int64)."""
+    """label_samples' per-sample arrays, in one pass: the families as int8 (0, 1, 2: a byte per sample instead of
+    eight keeps the array in cache for the steps' scattered reads, decision 0150), index (P,) NaN as float32 (every
+    value a step writes is a line index, an integer, exact in float32; label_samples returns it as float64, decision
+    0150), q_out (P, 2) a copy of q, seed_jid (P,) −1 and seed (P,) `unlabelled` (both int32: junction ids and line
+    indices, `unlabelled` the int32 minimum; label_samples returns seed_jid as int64, decision 0150)."""
     P = q.shape[0]
-    fam = np.empty(P, np.intp)
-    index = np.empty(P)
+    fam = np.empty(P, np.int8)
+    index = np.empty(P, np.float32)
     q_out = np.empty((P, 2))
-    seed_jid = np.empty(P, np.int64)
-    seed = np.empty(P, np.int64)
+    seed_jid = np.empty(P, np.int32)
+    seed = np.empty(P, np.int32)
     for i in range(P):
         fam[i] = family[i]
         index[i] = np.nan

@@ -156,7 +156,7 @@ class Guard:
         amb = np.flatnonzero(amb_all[:, 0] != UNLABELLED).astype(np.intp)
         self.n = 0
         self.pair_s, self.pair_e = attached_pairs(
-            q, np.ascontiguousarray(fam, np.intp), np.ascontiguousarray(valid, np.bool_), np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2),
+            q, np.ascontiguousarray(fam), np.ascontiguousarray(valid, np.bool_), np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2),
             amb, np.ascontiguousarray(amb_all[amb]), np.ascontiguousarray(junction_dir, np.float64).reshape(-1, 2, 2),
             float(radius_px), float(lateral_px))
         self.pos_of = None

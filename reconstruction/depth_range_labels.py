@@ -93,7 +93,7 @@ def _k_open_positions(sid, piece, index, n_p, min_samples):
     lab = np.zeros(n_p, np.bool_)
     for a in range(n):
         size[piece[a]] += 1
-        if math.isfinite(index[sid[a]]):
+        if not lab[piece[a]] and math.isfinite(index[sid[a]]):  # a labelled piece's index is not read again (decision 0150)
             lab[piece[a]] = True
     m = 0
     for a in range(n):
@@ -219,7 +219,7 @@ def piece_indices(model: RigModel, q: np.ndarray, fam: np.ndarray, sid: np.ndarr
                                    other_family=other_family)
     sid = np.asarray(sid, np.int64)
     piece = np.asarray(piece, np.int64)
-    pos = _k_open_positions(sid, piece, np.asarray(index, np.float64), int(piece[-1]) + 1, int(min_samples))
+    pos = _k_open_positions(sid, piece, np.asarray(index), int(piece[-1]) + 1, int(min_samples))
     if len(pos) == 0:
         return none
     s = sid[pos]

@@ -41,8 +41,12 @@ from reconstruction.surface_labels import label_from_surface
 from reconstruction.limb_lines import label_beside_lines
 from reconstruction.residual_clusters import elevated_pieces, kept_adjacency
 from reconstruction.rigmodel import UNLABELLED, RigModel
-from reconstruction.seed_brightness import drop_seeds_off_brightness
+from reconstruction.seed_brightness import spread_checked_seeds
 from reconstruction.trace_ends import cut_facing_ends, cut_far_ends
+
+_NO_RIDGE = np.zeros(0, np.float32)  # spread_checked_seeds without the check (decision 0150)
+# label_samples' seeds are int32 (decision 0150): the sentinel must be one
+assert np.iinfo(np.int32).min <= UNLABELLED <= np.iinfo(np.int32).max
 
 
 @dataclass(frozen=True)
@@ -1446,7 +1450,8 @@ def label_samples(
     projections stay with `RigModel`. Times: benchmarks/results/bench_reconstruction.md.
     """
     q = np.asarray(obs.q, np.float64).reshape(-1, 2)
-    # the families (intp), index (NaN), q_out (a copy of q), seed_jid (−1) and seed (UNLABELLED): one pass
+    # the families (int8), index (NaN; float32 inside, the integer line indices exact, returned as float64: decision 0150),
+    # q_out (a copy of q), seed_jid (−1) and seed (UNLABELLED): one pass
     fam, index, q_out, seed_jid, seed = _k.label_arrays(q, np.asarray(obs.family).reshape(-1), UNLABELLED)
     P = len(q)
     stats = {"samples": P, "mixing_zone": 0, "snapped_to_junction_line": 0, "seeds": 0, "seed_conflicts": 0, "traces": 0,
@@ -1458,7 +1463,7 @@ def label_samples(
     cell = prep.cell
     valid = prep.valid
     if prep.n_valid == 0:
-        return SampleLabels(index, q_out, seed_jid, stats)
+        return SampleLabels(index.astype(np.float64), q_out, seed_jid.astype(np.int64), stats)
     # 1. The mixing zone (prepare_samples).
     near_other = prep.near_other
     # 2. Seeds: samples near a labelled junction, on its fitted line of their family.
@@ -1492,11 +1497,14 @@ def label_samples(
         else:
             order, piece, ts, tangent, sid = tp.order, tp.piece, tp.ts, tp.tangent, tp.sid
         stats["traces"] = int(piece[-1]) + 1
-        if options.seed_brightness and ridge is not None and len(ridge) == P:
-            # a junction's seeds on a piece of another surface, beyond a depth edge at the junction (decision 0146)
-            stats["seeds_off_brightness"] = int(drop_seeds_off_brightness(sid, piece, fam, seed, seed_jid, ridge,
-                                                                          float(options.seed_brightness_share), UNLABELLED))
-        got, n_seeded, n_conflicting = _k.spread_seeds(sid, piece, ts, seed, seed_jid, index, UNLABELLED)
+        # a junction's seeds on a piece of another surface, beyond a depth edge at the junction, taken back (decision
+        # 0146), and the seeds spread along the pieces: one pass over the positions (decision 0150)
+        check = bool(options.seed_brightness and ridge is not None and len(ridge) == P)
+        got, n_seeded, n_conflicting, n_off = spread_checked_seeds(
+            sid, piece, ts, fam, seed, seed_jid, index, ridge if check else _NO_RIDGE, float(options.seed_brightness_share),
+            check, UNLABELLED)
+        if check:
+            stats["seeds_off_brightness"] = int(n_off)
         stats["traces_seeded"] = int(n_seeded)
         stats["traces_conflicting"] = int(n_conflicting)
         guard = None
@@ -1644,4 +1652,4 @@ def label_samples(
         if guard is not None:
             stats["samples_ambiguity_guard"] = guard.n
     stats["samples_labelled"] = int(_k.drop_unlabelled_junctions(index, seed_jid))
-    return SampleLabels(index, q_out, seed_jid, stats)
+    return SampleLabels(index.astype(np.float64), q_out, seed_jid.astype(np.int64), stats)

@@ -268,9 +268,13 @@ def test_label_arrays_equal_the_numpy_allocations():
     rng = np.random.default_rng(12)
     q = rng.uniform(0, 1000, size=(777, 2))
     fam8 = rng.integers(0, 3, 777).astype(np.int8)
-    fam, index, q_out, seed_jid, seed = lk.label_arrays(q, fam8, UNL)
-    assert _same(fam, fam8.astype(np.intp)) and _same(index, np.full(777, np.nan)) and _same(q_out, q)
-    assert _same(seed_jid, np.full(777, -1, np.int64)) and _same(seed, np.full(777, UNL, np.int64))
+    from reconstruction.rigmodel import UNLABELLED
+
+    # decision 0150: the families int8, index float32, seed_jid and seed int32 (label_samples widens what it returns;
+    # its sentinel UNLABELLED is the int32 minimum)
+    fam, index, q_out, seed_jid, seed = lk.label_arrays(q, fam8, UNLABELLED)
+    assert _same(fam, fam8) and _same(index, np.full(777, np.nan, np.float32)) and _same(q_out, q)
+    assert _same(seed_jid, np.full(777, -1, np.int32)) and _same(seed, np.full(777, UNLABELLED, np.int32))
     q_out[0, 0] = -1.0
     assert q[0, 0] != -1.0  # a copy
 

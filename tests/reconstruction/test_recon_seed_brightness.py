@@ -109,3 +109,64 @@ def test_compiled_pass_equals_the_reference_version():
         assert np.array_equal(a[3], b[3]) and np.array_equal(a[4], b[4]), trial
         dropped += got
     assert dropped > 100  # the frames do exercise the take-back
+
+
+def _runs_frame(rng):
+    """Trace order as label_samples sees it: pieces as runs, each junction's seeds on a piece one run of positions
+    (the samples near the junction) at either end of the piece, a few junctions' lines also in two runs of one
+    piece, seeds with no junction, ridge brightness with ties and a piece now and then on a dimmer surface."""
+    n_pieces = int(rng.integers(1, 300))
+    sizes = rng.integers(1, 25, n_pieces)
+    n = int(sizes.sum())
+    P = n + int(rng.integers(0, 200))
+    sid = rng.permutation(P)[:n].astype(np.intp)
+    piece = np.repeat(np.arange(n_pieces), sizes).astype(np.intp)
+    fam = rng.integers(1, 3, P).astype(np.intp)
+    seed = np.full(P, UNLABELLED, np.intp)
+    seed_jid = np.full(P, -1, np.intp)
+    ridge = np.round(rng.uniform(80, 120, P) / 5) * 5
+    n_j = max(2, n_pieces // 2)
+    a = 0
+    for p, m in enumerate(sizes.tolist()):
+        if rng.random() < 0.3:
+            ridge[sid[a : a + m]] *= 0.4  # another surface
+        for lo, hi in ((0, int(rng.integers(0, m + 1))), (int(rng.integers(0, m + 1)), m)):
+            s = sid[a + lo : a + hi]
+            seed[s] = int(rng.integers(-20, 20))
+            seed_jid[s] = int(rng.integers(-1, n_j))
+        if m > 4 and rng.random() < 0.2:  # one junction line in two runs of the piece
+            seed[sid[a]] = seed[sid[a + m - 1]] = 3
+            seed_jid[sid[a]] = seed_jid[sid[a + m - 1]] = int(rng.integers(0, n_j))
+        a += m
+    return sid, piece, fam, seed, seed_jid, ridge.astype(np.float32)
+
+
+def test_spread_with_the_check_equals_the_check_then_the_spread():
+    """Decision 0150: `spread_checked_seeds` (the check and the spreading in one pass over the positions) gives what
+    the kept first version of the check (`_seed_brightness_reference`) followed by `_label_kernels.spread_seeds` gives:
+    the seeds taken back, index, seed_jid, the positions reached and the counts, with the check on and off, on
+    random frames (any grouping) and on frames laid out as label_samples' (a junction line one run of a piece)."""
+    from reconstruction import _label_kernels as K
+    from reconstruction.seed_brightness import spread_checked_seeds
+    from tests.reconstruction._seed_brightness_reference import drop_seeds_off_brightness as reference
+
+    rng = np.random.default_rng(150)
+    dropped = 0
+    for trial in range(160):
+        if trial % 2:
+            sid, piece, fam, seed, seed_jid, ridge = _random_frame(rng, int(rng.integers(1, 400)), float(rng.uniform(0.05, 0.9)))
+        else:
+            sid, piece, fam, seed, seed_jid, ridge = _runs_frame(rng)
+        ts = rng.uniform(0, 3, len(sid)).cumsum()
+        share = float(rng.choice([0.1, 0.2, 0.25, 0.5]))
+        for check in (True, False):
+            s0, j0, i0 = seed.copy(), seed_jid.copy(), np.full(len(seed), np.nan)
+            want_d = reference(sid, piece, fam, s0, j0, ridge, share, UNLABELLED) if check else 0
+            want_got, want_seeded, want_conf = K.spread_seeds(sid, piece, ts, s0, j0, i0, UNLABELLED)
+            s1, j1, i1 = seed.copy(), seed_jid.copy(), np.full(len(seed), np.nan)
+            got, seeded, conf, d = spread_checked_seeds(sid, piece, ts, fam, s1, j1, i1, ridge, share, check, UNLABELLED)
+            assert d == want_d and seeded == want_seeded and conf == want_conf, (trial, check)
+            assert np.array_equal(got, want_got) and np.array_equal(s1, s0) and np.array_equal(j1, j0), (trial, check)
+            assert np.array_equal(i1, i0, equal_nan=True), (trial, check)
+            dropped += d
+    assert dropped > 200  # the frames do exercise the take-back
