@@ -56,6 +56,7 @@ import cv2
 import numpy as np
 
 from reconstruction import _extract_kernels as _k
+from reconstruction import unsuppressed_seeds as _us
 from reconstruction.crossing_candidates import merge_within, remap_grid
 from reconstruction.corner_junctions import corner_candidates, corner_kinds, dark_beyond
 from reconstruction.junction_arms import retry_trimmed_arms
@@ -115,6 +116,10 @@ class ExtractOptions:
     corner_junctions: a candidate rejected only because one family ends at it (a T, straight arms) is kept as
         a junction (`corner_junctions.py`; stats["junction_corner"] says which). Off: measured not to pay
         (decision 0102). corner_dark: with it, only T's whose stem's missing side is dark (no lit lines there).
+    unsuppressed_seeds: a crossing-score maximum whose ring test fails (no crossing: a wide line's own blob, a spot)
+        suppresses no weaker maximum: the maxima its blob hid are looked for again in its 3×3 cells and kept as
+        candidates where their own ring holds both families and no crossing is within the attachment reach
+        (`unsuppressed_seeds.py`, decision 0152). Off: every maximum suppresses its 3×3 cells.
     """
 
     sigma_px: float | None = None
@@ -137,6 +142,7 @@ class ExtractOptions:
     crossing_eigen_noise: bool = True
     merge_close_candidates: bool = True
     acute_recentre: bool = False
+    unsuppressed_seeds: bool = False
     debug: bool = False
 
 
@@ -454,7 +460,10 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     r_att = float(min(r0 + 1.5 * s_w + 2.0, 0.45 * step + 1.0))  # a line reaching this close meets the crossing
     R = float(max(0.6 * step, r_att + 1.0))  # arms (further bounded by the neighbouring junctions)
     gh, gw = int(Hw / cell) + 1, int(Ww / cell) + 1
-    seed = _k.crossing_seeds(xu, xv, xs, cell, gh, gw)
+    if options.unsuppressed_seeds:  # the cells' maxima kept for the second look (0152)
+        seed, cell_max = _k.crossing_seeds_max(xu, xv, xs, cell, gh, gw)
+    else:
+        seed = _k.crossing_seeds(xu, xv, xs, cell, gh, gw)
     if options.debug:
         stats["debug_xpix"] = (xu * scale, xv * scale, xs)
     seeds, seed_score = _k.ordered_seeds(xu, xv, xs, seed)  # weakest first: the strongest seed wins overlaps below
@@ -500,6 +509,28 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     if len(seeds) and P:
         near, dist = look_dist(seed_grid, qx32, qy32, seeds, r_att)
         n_ring = _k.ring_counts(near, dist, fam, np.float32(r0), len(seeds))
+        if options.unsuppressed_seeds:  # a maximum that is no crossing suppresses nothing (0152)
+            # a line's own blob: one family only, about one sample per px of the ring on both sides of it
+            ids, masked = _us.unsuppressed_seeds(xu, xv, xs, seed, cell, cell_max, seeds[:, 0].copy(), seeds[:, 1].copy(),
+                                                 n_ring, float(max(r0 + s_w, 1.5)), float(r_att - r0))
+            n_new = 0
+            if len(ids):
+                pos, sc_new = _us.new_candidates(
+                    ids, xu, xv, xs, masked, float(max(r0 + s_w, 1.5)), seeds[:, 0].copy(), seeds[:, 1].copy(), n_ring,
+                    float(r0), float(r_att), qx32, qy32, fam, near, dist, row_start, 0, Hw)
+                n_new = len(pos)
+                if n_new:
+                    n_old = len(seeds)
+                    seeds = np.concatenate([seeds, pos])
+                    seed_score = np.concatenate([seed_score, sc_new])
+                    n_ring = np.concatenate([n_ring, np.zeros((n_new, 2), n_ring.dtype)])
+                    _us.stamp_more(seeds[:, 0].copy(), seeds[:, 1].copy(), n_old, r_att + 1.5, cs, seed_grid, _PAD)
+                    s32n = np.asarray(seeds, np.float32)
+                    _us.relook(seed_grid, qx32, qy32, inv_cs, _PAD, s32n[:, 0].copy(), s32n[:, 1].copy(), n_old,
+                               np.float32(r_att), r_att + 1.5 + 2 * cs, np.float32(r0), fam, near, dist, n_ring, row_start, 0, Hw)
+            stats["junction_candidates_unsuppressed"] = int(n_new)
+            if options.debug:
+                stats["debug_raw_candidates"] = seeds * scale
         if options.debug:
             stats["debug_ring_own"] = n_ring
         if options.shared_arms and scale == 1:  # crossings a few px apart share their ring samples (0120)
