@@ -28,77 +28,94 @@ from reconstruction._jit import njit
 
 
 @njit
+def _row_from(xu, a, b, x0):
+    """The first index in [a, b) of a row's pixels (columns ascending) with column ≥ x0 (binary search)."""
+    while a < b:
+        mid = (a + b) >> 1
+        if xu[mid] < x0:
+            a = mid + 1
+        else:
+            b = mid
+    return a
+
+
+@njit
 def unsuppressed_seeds(xu, xv, xs, seed, cell, m, sx, sy, n_ring, r_mask, n_line):
-    """Crossing pixels (xu, xv int, sorted by row xv; xs float32 score; seed: the maxima `crossing_seeds` flagged)
-    that are the maximum over their 3×3 cells once the pixels within `r_mask` of a line's own blob are left out,
-    were no maximum before, and have a left-out pixel in their 3×3 cells. A line's own blob: a candidate (sx, sy)
-    whose ring (n_ring (ns, 2)) holds no sample of one family and at least `n_line` of the other. m: the cells'
-    maxima `crossing_seeds_max` used ((gh, gw) float32; overwritten: a cell holding a left-out pixel gets −1 − the
-    maximum of the others). Returns (pixel ids (k,) int64, masked (n,) bool)."""
+    """Crossing pixels (xu, xv int, row-major: rows xv ascending, columns ascending in a row; xs float32 score; seed:
+    the maxima `crossing_seeds` flagged) that are the maximum over their 3×3 cells once the pixels within `r_mask` of
+    a line's own blob are left out, were no maximum before, and have a left-out pixel in their 3×3 cells. A line's
+    own blob: a candidate (sx, sy) whose ring (n_ring (ns, 2)) holds no sample of one family and at least `n_line`
+    of the other. m: the cells' maxima `crossing_seeds_max` used ((gh, gw) float32; overwritten: a cell holding a
+    left-out pixel gets −1 − the maximum of its other pixels). Only the pixels around the blobs are read. Returns
+    (pixel ids (k,) int64, masked (n,) bool)."""
     ns = len(sx)
     n = len(xs)
     gh, gw = m.shape
     masked = np.zeros(n, np.bool_)
-    r2 = r_mask * r_mask
-    nb = 0
-    H = xv[n - 1] + 2 if n else 1
-    rs = np.empty(H + 1, np.int64)  # pixels of row y: rs[y]..rs[y + 1] (row-major: columns ascending in a row)
+    if n == 0:
+        return np.zeros(0, np.int64), masked
+    H = xv[n - 1] + 1
+    rs = np.empty(H + 1, np.int64)  # pixels of row y: rs[y] .. rs[y + 1]
     j = 0
     for y in range(H + 1):
         while j < n and xv[j] < y:
             j += 1
         rs[y] = j
-    for k in range(ns):  # the pixels within r_mask of a blob: its rows, and in each the columns by binary search
+    r2 = r_mask * r_mask
+    hit = np.empty((n, 2), np.int64)  # the cells holding a left-out pixel
+    nh = 0
+    for k in range(ns):  # the pixels within r_mask of a blob
         if not (min(n_ring[k, 0], n_ring[k, 1]) == 0 and max(n_ring[k, 0], n_ring[k, 1]) >= n_line):
             continue
-        nb += 1
         for y in range(max(int(math.floor(sy[k] - r_mask)), 0), min(int(math.floor(sy[k] + r_mask)) + 1, H)):
             dy = np.float64(y) - sy[k]
             if dy * dy > r2:
                 continue
-            a = rs[y]
-            b = rs[y + 1]
-            x0 = sx[k] - r_mask
-            while a < b:  # first pixel of the row at x ≥ x0
-                mid = (a + b) >> 1
-                if xu[mid] < x0:
-                    a = mid + 1
-                else:
-                    b = mid
-            for i in range(a, rs[y + 1]):
+            for i in range(_row_from(xu, rs[y], rs[y + 1], sx[k] - r_mask), rs[y + 1]):
                 dx = np.float64(xu[i]) - sx[k]
                 if dx > r_mask:
                     break
                 if dx * dx + dy * dy <= r2 and not masked[i]:
                     masked[i] = True
-                    m[int(xv[i] / cell), int(xu[i] / cell)] = np.float32(-1.0)  # recomputed below
-    if nb == 0 or n == 0:
-        return np.zeros(0, np.int64), masked
-    for i in range(n):  # the cells holding a left-out pixel: −1 − the maximum of the other pixels
-        a = int(xv[i] / cell)
-        c = int(xu[i] / cell)
-        if m[a, c] < 0 and not masked[i]:
-            m[a, c] = min(m[a, c], np.float32(-1.0) - xs[i])
+                    a = int(xv[i] / cell)
+                    c = int(xu[i] / cell)
+                    if m[a, c] >= 0:
+                        m[a, c] = np.float32(-1.0)
+                        hit[nh, 0] = a
+                        hit[nh, 1] = c
+                        nh += 1
+    for t in range(nh):  # a hit cell: −1 − the maximum of its pixels left in
+        a = hit[t, 0]
+        c = hit[t, 1]
+        for y in range(max(int(a * cell), 0), min(int((a + 1) * cell) + 1, H)):
+            for i in range(_row_from(xu, rs[y], rs[y + 1], int(c * cell)), rs[y + 1]):
+                if xu[i] > (c + 1) * cell:
+                    break
+                if int(xv[i] / cell) == a and int(xu[i] / cell) == c and not masked[i]:
+                    m[a, c] = min(m[a, c], np.float32(-1.0) - xs[i])
     out = np.empty(n, np.int64)
+    done = np.zeros(n, np.bool_)
     k = 0
-    for i in range(n):
-        if masked[i] or seed[i]:
-            continue
-        a = int(xv[i] / cell)
-        c = int(xu[i] / cell)
-        best = np.float32(0.0)
-        h = False
-        for rr in range(max(a - 1, 0), min(a + 2, gh)):
-            for cc in range(max(c - 1, 0), min(c + 2, gw)):
-                v = m[rr, cc]
-                if v < 0:
-                    h = True
-                    v = np.float32(-1.0) - v
-                best = max(best, v)
-        if h and xs[i] >= best:
-            out[k] = i
-            k += 1
-    return out[:k], masked
+    for t in range(nh):  # the pixels of the cells around each hit cell
+        for a in range(max(hit[t, 0] - 1, 0), min(hit[t, 0] + 2, gh)):
+            for c in range(max(hit[t, 1] - 1, 0), min(hit[t, 1] + 2, gw)):
+                for y in range(max(int(a * cell), 0), min(int((a + 1) * cell) + 1, H)):
+                    for i in range(_row_from(xu, rs[y], rs[y + 1], int(c * cell)), rs[y + 1]):
+                        if xu[i] > (c + 1) * cell:
+                            break
+                        if done[i] or masked[i] or seed[i] or int(xv[i] / cell) != a or int(xu[i] / cell) != c:
+                            continue
+                        done[i] = True
+                        best = np.float32(0.0)
+                        for rr in range(max(a - 1, 0), min(a + 2, gh)):
+                            for cc in range(max(c - 1, 0), min(c + 2, gw)):
+                                v = m[rr, cc]
+                                best = max(best, np.float32(-1.0) - v if v < 0 else v)
+                        if xs[i] >= best:
+                            out[k] = i
+                            k += 1
+    out = np.sort(out[:k])
+    return out, masked
 
 
 @njit
