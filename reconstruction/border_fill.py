@@ -105,6 +105,19 @@ def _k_mark_lines(q, fam, idx, xmax, ymax, lim, kmin, mark):
 
 
 @njit
+def _k_mark_box(box, xmax, ymax, lim, mark):
+    """`_k_mark_lines` from the lines' boxes (`FillShared.box`: `crossing_fill._k_gaps`' running boxes, equal to
+    `crossing_fill._k_order_range_box`'s; same kmin and shape): a line
+    has a sample within lim of the image box when its box does, min(smallest x, xmax − largest x, smallest y,
+    ymax − largest y) ≤ lim, the least of its samples' distances (the subtraction is monotone in the position,
+    so xmax − largest x is the least xmax − x bit for bit). Decision 0149."""
+    for f in range(mark.shape[0]):
+        for k in range(mark.shape[1]):
+            if min(min(box[f, k, 0], xmax - box[f, k, 1]), min(box[f, k, 2], ymax - box[f, k, 3])) <= lim:
+                mark[f, k] = True
+
+
+@njit
 def _k_select_lines(fam, idx, kmin, mark):
     """The ids of the labelled samples of the marked lines (`_k_mark_lines`)."""
     nk = mark.shape[1]
@@ -162,10 +175,11 @@ def fill_border(
 
 
 def _fill_parts(parts, *, image, q_samples, family_samples, model, sigma_px, cell_px, depth_range_mm,
-                options: BorderFillOptions = BorderFillOptions()) -> CrossingPoints:
+                options: BorderFillOptions = BorderFillOptions(), box: tuple | None = None) -> CrossingPoints:
     """`fill_border` over the labelled samples given in parts ((q, family, index, junction), ...), taken as
     one array in that order, without concatenating them: only the samples of the lines that come near the
-    border are gathered."""
+    border are gathered. box: (the lines' boxes of parts[0], their first line index) (`FillShared.box`,
+    `.box_kmin`), read instead of its samples to find the lines near the border (decision 0149)."""
     stats: dict = {"ends": 0, "ends_filled": 0, "samples_border_filled": 0, "ends_rejected": {}}
     if not options.enabled:
         return _empty(stats)
@@ -181,12 +195,15 @@ def _fill_parts(parts, *, image, q_samples, family_samples, model, sigma_px, cel
     kmin = int(model.index_min)
     mark = np.zeros((2, int(model.index_max) - kmin + 1), np.bool_)
     arrs = []
-    for qp, fp, kp, jp in parts:
+    for i, (qp, fp, kp, jp) in enumerate(parts):
         qp = np.ascontiguousarray(qp, np.float64).reshape(-1, 2)
         fp = np.ascontiguousarray(np.asarray(fp).reshape(-1))
         kp = np.ascontiguousarray(kp, np.float64).reshape(-1)
         arrs.append((qp, fp, kp, jp))
-        _k_mark_lines(qp, fp, kp, float(W - 1), float(H - 1), lim, kmin, mark)
+        if i == 0 and box is not None and box[1] == kmin and box[0].shape[:2] == mark.shape:
+            _k_mark_box(box[0], float(W - 1), float(H - 1), lim, mark)
+        else:
+            _k_mark_lines(qp, fp, kp, float(W - 1), float(H - 1), lim, kmin, mark)
     if not mark.any():
         return _empty(stats)
     sels = [_k_select_lines(fp, kp, kmin, mark) for _qp, fp, kp, _jp in arrs]
@@ -495,9 +512,15 @@ def with_border(
     """The crossing fills' points `cp` (None: none) followed by `fill_border`'s, computed over the label
     stage's samples (q, family, index, junction: `SampleLabels.q`, the observation's family, `.index`,
     `.junction`) with `cp`'s appended; stats: cp's, with "samples_border_filled" and "border" (the call's
-    own counts). kwargs: `fill_border`'s keywords."""
+    own counts). kwargs: `fill_border`'s keywords. When q, family and index are the arrays `fill_crossings`
+    ran on (`cp.shared`), the lines' boxes it made on them (`FillShared.box`) stand for their samples in the
+    test "which lines come near the border" (decision 0149)."""
     parts = [(q, family, index, junction)]
     if cp is not None and len(cp.index):
         parts.append((cp.q, cp.family, cp.index, cp.junction))
-    bp = _fill_parts(tuple(parts), **kwargs)
+    sh = cp.shared if cp is not None else None
+    box = None
+    if sh is not None and sh.box is not None and all(a is b for a, b in zip(sh.inputs[:3], (q, family, index))):
+        box = (sh.box, sh.box_kmin)
+    bp = _fill_parts(tuple(parts), box=box, **kwargs)
     return appended(cp, bp, "samples_border_filled", "border", cp.shared if cp is not None else None)

@@ -36,7 +36,7 @@ The paper labeller's output is left alone (the pipeline calls this only for the 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -93,7 +93,14 @@ class FillShared:
     of q in order along their lines (`_k_order`, `_sorted_by_key`), key: their keys in that order, key_range:
     (smallest, largest line index, largest |position|) (`_k_order_range`); gcell: the bucket grids' cell
     (camera px); grids: `_k_grids`' output on that cell (None when `fill_crossings` stopped before building
-    them)."""
+    them). order_all: the order of q followed by the points `fill_crossings` returned (`points`: the very
+    arrays q, family, index of its `CrossingPoints`), those points put in at their gaps (`_k_insert_order`,
+    decision 0149): `order_with_appended`'s result for them, without its sort and merge; None where that
+    insertion is not exact (the one-sided fill then calls `order_with_appended`). box: the lines' boxes of q
+    (`_k_gaps`' running boxes on the model's index range, for the border fill's test "which lines come near the
+    border"; None when a labelled sample's position is not finite: the border fill then walks the samples);
+    box_kmin: the line index of its first column (the model's index_min). fam: the family of q as np.intp (the
+    one-sided fill's, decision 0149)."""
 
     inputs: tuple
     n: int
@@ -102,6 +109,11 @@ class FillShared:
     key_range: np.ndarray
     gcell: float
     grids: tuple | None
+    order_all: np.ndarray | None = None
+    points: tuple = ()
+    box: np.ndarray | None = None
+    box_kmin: int = 0
+    fam: np.ndarray | None = None
 
 
 def _empty(stats: dict, shared: FillShared | None = None) -> CrossingPoints:
@@ -172,12 +184,13 @@ def fill_crossings(
     idx = np.ascontiguousarray(index, np.float64).reshape(-1)
     # 1. each line's labelled samples in order along its family's direction (the rig's prediction)
     d1, d2 = _family_directions(model)
-    sel, key, key_range = _k_order_range(q, fam, idx, d1, d2)
+    kb = int(model.index_min)
+    sel, key, key_range, _box, odd = _k_order_range_box(q, fam, idx, d1, d2, kb, 0)
     order, key_sorted = _sorted_with_keys(sel, key)
     gap_max = _gap_max_px(sigma_px, cell_px, options)
     gcell = grid_cell_px(gap_max, sigma_px, cell_px)
     if len(order) < 2 * options.anchor + 2:
-        return _empty(stats, FillShared(inputs, len(q), order, key_sorted, key_range, gcell, None))
+        return _empty(stats, FillShared(inputs, len(q), order, key_sorted, key_range, gcell, None, fam=fam))
     lab = np.ascontiguousarray(junction_labels, np.int64).reshape(-1, 2)
     qj = np.ascontiguousarray(q_junction, np.float64).reshape(-1, 2)
     jdir = np.ascontiguousarray(junction_dir, np.float64).reshape(-1, 2, 2)
@@ -188,12 +201,12 @@ def fill_crossings(
         grids = _k_grids(qj, lab, qs, fs, float(gcell))
     else:
         grids = _k_junction_grid(qj, lab, float(gcell)) + tuple(fgrid)
-    shared = FillShared(inputs, len(q), order, key_sorted, key_range, gcell, grids)
-    n_gaps, gaps, acc, c_q, why = _k_gaps(
+    n_gaps, gaps, acc, c_q, why, gp, box = _k_gaps(
         q, fam, idx, order, qj, jdir, lab, qs, *grids, float(gcell), float(cell_px), float(sigma_px),
         float(options.min_gap_cells * cell_px), float(gap_max), float((options.mix_sigma + options.trim_sigma) * sigma_px),
         int(options.anchor), float(np.deg2rad(options.max_turn_deg)),
-        float(options.lateral_px * cell_px))
+        float(options.lateral_px * cell_px), kb, int(model.index_max) - kb + 1)
+    shared = FillShared(inputs, len(q), order, key_sorted, key_range, gcell, grids, box=box if odd == 0 else None, box_kmin=kb, fam=fam)
     stats["crossing_gaps"] = int(n_gaps)
     stats["crossing_gaps_rejected"] = {"anchors_missing": int(why[0]), "anchors_broken": int(why[1]), "anchors_crooked": int(why[2]),
                                        "turn": int(why[3]), "lateral": int(why[4]), "no_crossing": 0}
@@ -216,7 +229,79 @@ def fill_crossings(
     # 4. points one sampling step apart strictly inside the gap, on the blend of the two tangents
     q_new, f_new, k_new, j_new = _k_points(q, fam, idx, np.ascontiguousarray(junction, np.int64).reshape(-1), gaps, acc, float(cell_px))
     stats["samples_crossing_filled"] = int(len(q_new))
+    # the order of q and these points, for the one-sided fill (decision 0149): each gap's points put in after its
+    # first sample, checked against the keys
+    order_all, ok = _k_insert_order(order, key_sorted, key_range, gp, gaps, acc, float(cell_px), q_new, f_new, k_new, len(q), d1, d2)
+    shared = replace(shared, order_all=order_all if ok else None, points=(q_new, f_new, k_new))
     return CrossingPoints(q_new, f_new, k_new, j_new, stats, shared)
+
+
+@njit
+def _k_insert_order(order, key, key_range, gp, gaps, acc, cell, q_new, f_new, k_new, n0, d1, d2):
+    """`order_with_appended` for the points `_k_points` made (q_new, f_new, k_new; ids from n0 on) without a sort:
+    each accepted gap's points (in `_k_points`' order) go after the gap's first sample, order[gp[g]]. Returns that
+    order and ok: True when every point takes part in the order and lies inside key_range (`_k_appended_keys`'
+    test) and the keys of the result (the old ones `key`, the new ones by `_order_key`) increase strictly. Then it
+    is the one order by key, the merge `order_with_appended` returns; else (ok False) the caller sorts."""
+    kmin = key_range[0]
+    kmax = key_range[1]
+    tmax = key_range[2]
+    span = 2.0 * (tmax + 1.0)
+    n = order.shape[0]
+    m = q_new.shape[0]
+    out = np.empty(n + m, np.intp)
+    # the old keys increase strictly (one tight pass); then between two gaps the old order is copied as it is and
+    # only the keys around each gap's points are compared
+    for p in range(1, n):
+        if not key[p] > key[p - 1]:
+            return out, False
+    o = 0
+    p = 0
+    j = 0
+    for g in range(gaps.shape[0]):
+        if not acc[g]:
+            continue
+        n_pts = _n_gap_points(gaps[g, 3], cell)
+        if n_pts == 0:
+            continue
+        pg = gp[g]
+        if pg < p or pg >= n:
+            return out, False
+        c = pg + 1 - p
+        out[o:o + c] = order[p:pg + 1]
+        o += c
+        p = pg + 1
+        last = key[pg]
+        for _ in range(n_pts):
+            if j >= m:
+                return out, False
+            f = f_new[j]
+            k = k_new[j]
+            if not ((f == 1 or f == 2) and np.isfinite(k) and np.isfinite(q_new[j, 0]) and np.isfinite(q_new[j, 1])):
+                return out, False
+            if f == 1:
+                t = q_new[j, 0] * d1[0] + q_new[j, 1] * d1[1]
+            else:
+                t = q_new[j, 0] * d2[0] + q_new[j, 1] * d2[1]
+            if k < kmin or k > kmax or abs(t) > tmax:
+                return out, False
+            kj = _order_key(f, k, t, kmin, kmax, span)
+            if not kj > last:
+                return out, False
+            last = kj
+            out[o] = n0 + j
+            o += 1
+            j += 1
+        if p < n and not key[p] > last:
+            return out, False
+    out[o:] = order[p:]
+    return out, j == m
+
+
+@njit(inline="always")
+def _n_gap_points(L, cell):
+    """The points `_k_points` puts in a gap of length L: one sampling step apart, strictly inside."""
+    return max(int(math.ceil(L / cell - 1e-9)) - 1, 0)
 
 
 @njit
@@ -277,6 +362,17 @@ def _k_order(q, fam, idx, d1, d2):
 def _k_order_range(q, fam, idx, d1, d2):
     """`_k_order`'s sel and key, and the key's range (3,): the smallest and largest line index and the
     largest |position| (an appended sample inside it gets its key from the same formula: `_k_appended_keys`)."""
+    sel, key, rng, _box, _odd = _k_order_range_box(q, fam, idx, d1, d2, 0, 0)
+    return sel, key, rng
+
+
+@njit
+def _k_order_range_box(q, fam, idx, d1, d2, box_kmin, box_nk):
+    """`_k_order_range`, and in the same pass each line's box (decision 0149, for the border fill's
+    `_k_mark_box`): box (2, box_nk, 4) [smallest x, largest x, smallest y, largest y] of the samples in the
+    order of line (family f, index k) at box[f − 1, int(k) − box_kmin] (±inf where none; `fill_crossings` takes
+    them from `_k_gaps`, box_nk 0 here); odd: the number of labelled samples (family 1 or 2, finite index) the
+    order and the box leave out (a position not finite), which `border_fill._k_mark_lines` would look at."""
     n = q.shape[0]
     sel = np.empty(n, np.intp)
     m = 0
@@ -284,7 +380,28 @@ def _k_order_range(q, fam, idx, d1, d2):
     kmax = -np.inf
     tmax = 0.0
     t = np.empty(n)
+    box = np.empty((2, box_nk, 4))
+    for f in range(2):
+        for k in range(box_nk):
+            box[f, k, 0] = np.inf
+            box[f, k, 1] = -np.inf
+            box[f, k, 2] = np.inf
+            box[f, k, 3] = -np.inf
+    odd = 0
     for i in range(n):
+        if (fam[i] == 1 or fam[i] == 2) and np.isfinite(idx[i]):
+            x = q[i, 0]
+            y = q[i, 1]
+            if not (np.isfinite(x) and np.isfinite(y)):
+                odd += 1
+            elif box_nk > 0:
+                ki = int(idx[i]) - box_kmin
+                if ki >= 0 and ki < box_nk:
+                    f = fam[i] - 1
+                    box[f, ki, 0] = min(box[f, ki, 0], x)
+                    box[f, ki, 1] = max(box[f, ki, 1], x)
+                    box[f, ki, 2] = min(box[f, ki, 2], y)
+                    box[f, ki, 3] = max(box[f, ki, 3], y)
         if (fam[i] == 1 or fam[i] == 2) and np.isfinite(idx[i]) and np.isfinite(q[i, 0]) and np.isfinite(q[i, 1]):
             sel[m] = i
             if fam[i] == 1:
@@ -304,7 +421,7 @@ def _k_order_range(q, fam, idx, d1, d2):
     rng[0] = kmin
     rng[1] = kmax
     rng[2] = tmax
-    return sel[:m], key, rng
+    return sel[:m], key, rng, box, odd
 
 
 @njit(inline="always")
@@ -532,6 +649,10 @@ def appended(cp: CrossingPoints | None, new: CrossingPoints, count_key: str, sta
     stats[stats_key] = new.stats
     if cp is None or len(cp.index) == 0:
         return CrossingPoints(new.q, new.family, new.index, new.junction, stats, shared)
+    if (len(new.index) == 0 and len(new.q) == 0 and len(new.family) == 0 and len(new.junction) == 0
+            and all(np.result_type(a, b) == a.dtype for a, b in ((cp.q, new.q), (cp.index, new.index), (cp.junction, new.junction)))):
+        # nothing new: cp's own arrays (the concatenation would copy them, same values and dtypes; decision 0149)
+        return CrossingPoints(cp.q, cp.family, cp.index, cp.junction, stats, shared)
     return CrossingPoints(np.concatenate([cp.q, new.q]), np.concatenate([cp.family, new.family.astype(cp.family.dtype)]),
                           np.concatenate([cp.index, new.index]), np.concatenate([cp.junction, new.junction]), stats, shared)
 
@@ -573,7 +694,7 @@ def _k_points(q, fam, idx, junction, gaps, acc, cell):
     total = 0
     for g in range(G):
         if acc[g]:
-            total += max(int(math.ceil(gaps[g, 3] / cell - 1e-9)) - 1, 0)
+            total += _n_gap_points(gaps[g, 3], cell)
     q_new = np.empty((total, 2))
     f_new = np.empty(total, np.intp)
     k_new = np.empty(total)
@@ -586,7 +707,7 @@ def _k_points(q, fam, idx, junction, gaps, acc, cell):
         ux = gaps[g, 1]
         uy = gaps[g, 2]
         L = gaps[g, 3]
-        n_pts = max(int(math.ceil(L / cell - 1e-9)) - 1, 0)
+        n_pts = _n_gap_points(L, cell)
         for k in range(1, n_pts + 1):
             s = k * (L / (n_pts + 1))
             r = _curve_r(s, L, gaps[g, 4], gaps[g, 5], gaps[g, 6], gaps[g, 7])
@@ -608,14 +729,17 @@ def _curve_r(s, L, ka, ca, kb, cb):
 
 @njit
 def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, jitems, sx0, sy0, sgw, sgh, sstart, smid, sitems,
-            gcell, cell, sigma, min_gap, gap_max, half_gap, anchor, max_turn, lateral):
+            gcell, cell, sigma, min_gap, gap_max, half_gap, anchor, max_turn, lateral, box_kmin, box_nk):
     """Steps 1–3 of the module doc over the ordered labelled samples `order`: the gaps between consecutive
     samples of one line, the two sides' tangent fits and tests, and the crossing in the gap. Returns the
     number of gaps, per gap that passed the tangent tests (G, 8) [first sample id, u (2), L, ka, ca, kb,
     cb] (u the chord's direction from the first sample, L its length, r = k·s + c each side's tangent
     across the chord), accepted (G,) bool (a labelled junction of this line names the gap), c_q (G, 2):
     where the other family's straight run crosses the curve (NaN where none), to be checked on the light
-    sheet, and the counts of gaps rejected (5,): anchors missing, broken, crooked, turn, lateral. The
+    sheet, the counts of gaps rejected (5,): anchors missing, broken, crooked, turn, lateral, per gap its
+    position in order (G,), that of its first sample (decision 0149's insertion), and the lines' boxes of the
+    ordered samples (2, box_nk, 4), as `_k_order_range_box`'s, kept as running extremes along each line's run of
+    the order (decision 0149: the border fill's lines near the border). The
     labelled junctions' grid (jx0 … jitems) and the samples' (sx0 … sitems): `_k_grids` on cell gcell."""
     n = order.shape[0]
     cap = max(n - 1, 1)  # at most one gap per consecutive pair
@@ -623,6 +747,18 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
     why = np.zeros(6, np.int64)  # gaps rejected: anchors out of range, anchors not one run, anchors off their line, turn, lateral
     acc = np.empty(cap, np.bool_)  # each row written when it is made (below), not filled ahead
     c_q = np.empty((cap, 2))
+    gp = np.empty(cap, np.intp)  # each gap's position in order (its first sample's)
+    box = np.empty((2, box_nk, 4))
+    for bf in range(2):
+        for bk in range(box_nk):
+            box[bf, bk, 0] = np.inf
+            box[bf, bk, 1] = -np.inf
+            box[bf, bk, 2] = np.inf
+            box[bf, bk, 3] = -np.inf
+    rx0 = np.inf
+    rx1 = -np.inf
+    ry0 = np.inf
+    ry1 = -np.inf
     G = 0
     n_gaps = 0
     hits = np.empty(sitems.shape[0], np.intp)  # the other family's samples in the disc, in search order
@@ -631,7 +767,16 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
     for p in range(n - 1):
         a = order[p]
         b = order[p + 1]
+        rx0 = min(rx0, q[a, 0])
+        rx1 = max(rx1, q[a, 0])
+        ry0 = min(ry0, q[a, 1])
+        ry1 = max(ry1, q[a, 1])
         if fam[a] != fam[b] or idx[a] != idx[b]:
+            _box_flush(box, fam[a], idx[a], box_kmin, rx0, rx1, ry0, ry1)
+            rx0 = np.inf
+            rx1 = -np.inf
+            ry0 = np.inf
+            ry1 = -np.inf
             continue
         dx = q[b, 0] - q[a, 0]
         dy = q[b, 1] - q[a, 1]
@@ -687,6 +832,7 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
             why[4] += 1
             continue
         gaps[G, 0] = a
+        gp[G] = p
         gaps[G, 1] = ux
         gaps[G, 2] = uy
         gaps[G, 3] = L
@@ -757,7 +903,21 @@ def _k_gaps(q, fam, idx, order, qj, jdir, lab, qs, jx0, jy0, jgw, jgh, jstart, j
                     c_q[G, 0] = q[a, 0] + s * ux - r * uy
                     c_q[G, 1] = q[a, 1] + s * uy + r * ux
         G += 1
-    return n_gaps, gaps[:G], acc[:G], c_q[:G], why
+    if n > 0:
+        a = order[n - 1]
+        _box_flush(box, fam[a], idx[a], box_kmin, min(rx0, q[a, 0]), max(rx1, q[a, 0]), min(ry0, q[a, 1]), max(ry1, q[a, 1]))
+    return n_gaps, gaps[:G], acc[:G], c_q[:G], why, gp[:G], box
+
+
+@njit(inline="always")
+def _box_flush(box, f, k, box_kmin, x0, x1, y0, y1):
+    """A line's run's extremes into its box (`_k_gaps`)."""
+    ki = int(k) - box_kmin
+    if ki >= 0 and ki < box.shape[1]:
+        box[f - 1, ki, 0] = min(box[f - 1, ki, 0], x0)
+        box[f - 1, ki, 1] = max(box[f - 1, ki, 1], x1)
+        box[f - 1, ki, 2] = min(box[f - 1, ki, 2], y0)
+        box[f - 1, ki, 3] = max(box[f - 1, ki, 3], y1)
 
 
 @njit

@@ -36,7 +36,7 @@ The paper labeller's output is left alone (the pipeline calls this only for the 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -118,9 +118,10 @@ def fill_one_sided(
     that of the end sample); stats: ends looked at, filled, rejected by reason, samples added.
     shared: `fill_crossings`' work on this frame (`CrossingPoints.shared`; `with_one_sided` passes it when
     the inputs are the same objects): then q[:shared.n], family, index and q_samples, family_samples,
-    q_junction, junction_labels must be those it was computed from. Its order is extended by the appended
-    samples (`order_with_appended`) and its grids reused when the cell is equal; the outputs are those
-    without it, bit for bit."""
+    q_junction, junction_labels must be those it was computed from, and when shared.order_all is given,
+    q[shared.n:], family and index those of shared.points (`with_one_sided` sees to both). Its order is extended
+    by the appended samples (shared.order_all, else `order_with_appended`) and its grids reused when the cell is
+    equal; the outputs are those without it, bit for bit."""
     stats: dict = {"ends": 0, "ends_filled": 0, "samples_one_sided_filled": 0, "ends_rejected": {}}
     if not options.enabled:
         return _empty(stats)
@@ -130,6 +131,8 @@ def fill_one_sided(
     d1, d2 = _family_directions(model)
     if shared is not None and shared.n == len(q):
         order = shared.order  # nothing appended: the same arrays, the same order
+    elif shared is not None and shared.order_all is not None and shared.n + len(shared.points[0]) == len(q):
+        order = shared.order_all  # `fill_crossings`' own points appended: put in at their gaps (decision 0149)
     elif shared is not None and shared.n < len(q):
         order = order_with_appended(shared, q, fam, idx, d1, d2)
     else:
@@ -143,11 +146,11 @@ def fill_one_sided(
                                         min_angle_deg=options.min_angle_deg)
     gcell = grid_cell_px(gap_max, sigma_px, cell_px)
     qs = np.ascontiguousarray(q_samples, np.float64).reshape(-1, 2)
-    fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
     ks = np.ascontiguousarray(index_samples, np.float64).reshape(-1)
     if shared is not None and shared.grids is not None and shared.gcell == gcell:
         grids = shared.grids
     else:
+        fs = np.ascontiguousarray(np.asarray(family_samples).reshape(-1), np.intp)
         grids = _k_grids(qj, lab, qs, fs, float(gcell))
     n_ends, ends, acc, c_q, m_other, why, why_run = _k_ends(
         q, fam, idx, order, qj, lab, qs, ks, *grids, float(gcell), float(cell_px), float(sigma_px),
@@ -276,9 +279,22 @@ def _beyond(ox, oy, ux, uy, s_c, reach, width, f, k, qs, ks, x0, y0, gcell, gw, 
     my = oy + (s_c + 0.5 * reach) * uy
     gx = int((mx - x0) / gcell)
     gy = int((my - y0) / gcell)
+    # of the 3×3 cells around (mx, my)'s, only those the region's bounding box reaches (widened by 1e-6 px against
+    # rounding; a cell index clamped as the grid clamps its samples'): the result does not depend on the order the
+    # samples are read in, and no sample outside that box passes the test (decision 0149)
+    xa = ox + s_c * ux
+    xb = ox + (s_c + reach) * ux
+    ya = oy + s_c * uy
+    yb = oy + (s_c + reach) * uy
+    wx = width * abs(uy) + 1e-6
+    wy = width * abs(ux) + 1e-6
+    cx_lo = max(gx - 1, min(max(int(math.floor((min(xa, xb) - wx - x0) / gcell)), 0), gw - 1))
+    cx_hi = min(gx + 1, max(min(int(math.floor((max(xa, xb) + wx - x0) / gcell)), gw - 1), 0))
+    cy_lo = max(gy - 1, min(max(int(math.floor((min(ya, yb) - wy - y0) / gcell)), 0), gh - 1))
+    cy_hi = min(gy + 1, max(min(int(math.floor((max(ya, yb) + wy - y0) / gcell)), gh - 1), 0))
     out = 0
-    for cy in range(max(gy - 1, 0), min(gy + 2, gh)):
-        for cx in range(max(gx - 1, 0), min(gx + 2, gw)):
+    for cy in range(cy_lo, cy_hi + 1):
+        for cx in range(cx_lo, cx_hi + 1):
             c = cy * gw + cx
             t0 = start[c] if f == 1 else mid[c]
             t1 = mid[c] if f == 1 else start[c + 1]
@@ -517,19 +533,23 @@ def with_one_sided(
     `.junction`) with `cp`'s appended; stats: cp's, with "samples_one_sided_filled" and "one_sided" (the
     call's own counts). kwargs: `fill_one_sided`'s keywords except index_samples (the label stage's index)
     and shared: `cp.shared` (the order and grids `fill_crossings` built) is passed on when the arrays here
-    are the very objects it was computed from."""
+    are the very objects it was computed from; the result keeps `cp.shared` (for the border fill's boxes,
+    decision 0149)."""
     fam = np.asarray(family).reshape(-1)
     sh = cp.shared if cp is not None else None
     same = (q, family, index, kwargs.get("q_samples"), kwargs.get("family_samples"), kwargs.get("q_junction"),
             kwargs.get("junction_labels"))
     if sh is not None and not all(a is b for a, b in zip(sh.inputs, same)):
         sh = None  # computed from other arrays: not reused
+    if sh is not None and sh.order_all is not None and not all(a is b for a, b in zip(sh.points, (cp.q, cp.family, cp.index))):
+        sh = replace(sh, order_all=None)  # other points than `fill_crossings`' own: their order is not known
     if cp is not None and len(cp.index):
         q_all = np.concatenate([np.asarray(q, np.float64).reshape(-1, 2), cp.q])
-        f_all = np.concatenate([fam.astype(np.intp), cp.family.astype(np.intp)])
+        f0 = sh.fam if sh is not None and sh.fam is not None else fam.astype(np.intp)  # the same values (decision 0149)
+        f_all = np.concatenate([f0, cp.family.astype(np.intp, copy=False)])
         k_all = np.concatenate([np.asarray(index, np.float64), cp.index])
         j_all = np.concatenate([np.asarray(junction, np.int64), cp.junction])
     else:
-        q_all, f_all, k_all, j_all = q, fam, index, junction
+        q_all, f_all, k_all, j_all = q, (sh.fam if sh is not None and sh.fam is not None else fam), index, junction
     op = fill_one_sided(q_all, f_all, k_all, j_all, index_samples=index, shared=sh, **kwargs)
-    return appended(cp, op, "samples_one_sided_filled", "one_sided")
+    return appended(cp, op, "samples_one_sided_filled", "one_sided", cp.shared if cp is not None else None)

@@ -37,7 +37,7 @@ from reconstruction.patterns import GridPattern
 from reconstruction._jit import njit
 from reconstruction.placement import FIXED_ILL_POSED_PX
 from reconstruction.rigmodel import UNLABELLED, RigModel, rig_model
-from reconstruction.sheet_precision import SheetPrecisionOptions, frame_noise_px, imprecise_samples
+from reconstruction.sheet_precision import SheetPrecisionOptions, across_line_scale, frame_noise_px, imprecise_samples
 
 
 @dataclass(frozen=True)
@@ -407,6 +407,7 @@ def _triangulate(
     out_f = np.empty(n_max, np.int8)
     out_l = np.empty((n_max, 2), np.int32)
     out_r = np.empty(n_max, np.float32)
+    out_s = np.empty(n_max, np.int64)
     kernel_ok, tables = model.pixel_sheet_tables
     # Rigs the kernel cannot do alone (a projector with more than 5 distortion coefficients), and samples
     # outside the camera table: the sample points come from RigModel.intersect_light_sheets instead.
@@ -415,7 +416,7 @@ def _triangulate(
     for _ in range(2):
         n_keep, n_keep_j, N, n_outside = _k_frame_points(
             p_j, obs.q_junction, jl, labels, lab.residual, q_s, index_s, family_s, junction_s, p_given, UNLABELLED,
-            *tables, *z_range, depth, out_p, out_q, out_f, out_l, out_r,
+            *tables, *z_range, depth, out_p, out_q, out_f, out_l, out_r, out_s,
         )
         if not n_outside:
             break
@@ -425,7 +426,8 @@ def _triangulate(
     if options.labeller == "epipolar" and options.sheet_precision.enabled and n_keep > n_keep_j:
         # decision 0131: sample points whose sheet runs so nearly along the epipolar lines that their depth is
         # not known to the precision asked for are left out (the paper labeller's output stays the paper's method)
-        n_keep, n_imprecise = _drop_imprecise(model, lab, options, depth, out_p, out_q, out_f, out_l, out_r, n_keep, n_keep_j)
+        n_keep, n_imprecise = _drop_imprecise(model, lab, options, depth, out_p, out_q, out_f, out_l, out_r, n_keep, n_keep_j,
+                                              obs=obs, q_s=q_s, out_s=out_s)
 
     # Overlay segments: from each segment's fit, between its extreme samples.
     segs, seg_lab = _segment_overlay(obs, lab)
@@ -504,15 +506,23 @@ def _triangulate(
 
 
 def _drop_imprecise(model: RigModel, lab: Labels, options: ReconstructOptions, depth, out_p, out_q, out_f, out_l, out_r,
-                    n_keep: int, n_keep_j: int) -> tuple[int, int]:
+                    n_keep: int, n_keep_j: int, *, obs: GridObservation | None = None, q_s=None, out_s=None) -> tuple[int, int]:
     """Decision 0131: leave out the sample points (rows n_keep_j … n_keep of the outputs) that
     `sheet_precision.imprecise_samples` flags, with δ = max(the labelled junctions' residual scale, the labeller's
-    noise floor); the kept rows move up in order and the depth map's pixels of the dropped points are cleared
+    noise floor) and, with `SheetPrecisionOptions.own_offset` (decision 0151) and obs, q_s (the positions
+    triangulated), out_s (each output row's sample in q_s), each sample's own offset from its line's local fit
+    where larger (`sheet_precision.own_offsets_px`); the kept rows move up in order and the depth map's pixels of the dropped points are cleared
     (or take the last kept point on that pixel, as the kernel writes them). Returns (kept rows, dropped rows)."""
     pat = model.pattern
     delta = frame_noise_px(lab.residual, options.label.noise_floor_px)
+    own = None
+    if options.sheet_precision.own_offset and obs is not None and out_s is not None:
+        scale = across_line_scale(obs, lab.labels, model.line_offsets_px, model.index_min, float(pat.n1), float(pat.n2), UNLABELLED)
+        scale = np.where(np.isfinite(scale), scale, 1.0 / model.cam_per_proj_px)  # too few labelled edges: the rig's scale
+        # an offset over half the line's width is off the line's light (a kink, an edge): not its sideways error
+        own = (out_s[n_keep_j:n_keep], q_s, obs, scale, 0.5 * float(pat.line_width_px))
     bad = imprecise_samples(np.asarray(model.procam.projector.K, np.float64), model.procam.t_proj_cam, float(pat.n1), float(pat.n2),
-                            out_p[n_keep_j:n_keep], out_f[n_keep_j:n_keep], delta, options.sheet_precision)
+                            out_p[n_keep_j:n_keep], out_f[n_keep_j:n_keep], delta, options.sheet_precision, own)
     n_bad = int(bad.sum())
     if n_bad == 0:
         return n_keep, 0
@@ -607,7 +617,7 @@ def _k_segment_overlay(q, segment, centre, direction, ends, labels, unlabelled, 
 def _k_frame_points(p_j, q_junction, jl, labels, residual_j, q, index, family, junction, p_given, unlabelled,
                     R, t, index_min, nodes, iterations, cam_tab, inv_step, K_cam,
                     end_n, end_t, chord_n, chord_t, K_proj, dist, centre, n_other, offsets, inv_dx, guess,
-                    z_min, z_max, depth, out_p, out_q, out_f, out_l, out_r):
+                    z_min, z_max, depth, out_p, out_q, out_f, out_l, out_r, out_s):
     """Every point of the frame, in order, from its inputs to the outputs (decision 0071).
 
     First the labelled junctions jl (points p_j, from `triangulate_rays`), then the line samples with a
@@ -622,8 +632,8 @@ def _k_frame_points(p_j, q_junction, jl, labels, residual_j, q, index, family, j
     A point is kept when it is finite and its camera-frame z = R[:, 2]·(p − t) is in [z_min, z_max] mm:
     z goes to its nearest pixel of depth (H, W) (a later point overwrites an earlier one), the point, its
     pixel, family (0 junction, 1/2 line), label (a sample's index in its family's slot, `unlabelled` in
-    the other) and residual (a sample's: that of the junction it took its index from, junction[n] < 0:
-    junction 0's) to the float32/int outputs. Returns (kept, junctions kept, candidates, outside table).
+    the other), residual (a sample's: that of the junction it took its index from, junction[n] < 0:
+    junction 0's) and source (a sample's row n of q; −1 for a junction: decision 0151) to the outputs. Returns (kept, junctions kept, candidates, outside table).
 
     The samples go through short passes over flat scratch arrays (gather and camera table; end plane;
     projection; chord search; chord plane; outputs) rather than one loop doing everything per sample: the
@@ -794,6 +804,7 @@ def _k_frame_points(p_j, q_junction, jl, labels, residual_j, q, index, family, j
         out_l[m, 0] = labels[jn, 0]
         out_l[m, 1] = labels[jn, 1]
         out_r[m] = residual_j[jn]
+        out_s[m] = -1
         m += 1
     m_j = m
     for a in range(c):
@@ -818,5 +829,6 @@ def _k_frame_points(p_j, q_junction, jl, labels, residual_j, q, index, family, j
         out_l[m, 0] = k if fam == 1 else unlabelled
         out_l[m, 1] = k if fam == 2 else unlabelled
         out_r[m] = residual_j[max(junction[n], 0)]
+        out_s[m] = n
         m += 1
     return m, m_j, jl.shape[0] + c, n_outside

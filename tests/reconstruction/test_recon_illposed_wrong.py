@@ -133,7 +133,8 @@ def test_a_well_posed_scene_is_unchanged(small_scene):
 
     s = small_scene
     o = ReconstructOptions(depth_min_mm=s.depth_range_mm[0], depth_max_mm=s.depth_range_mm[1])
-    on = reconstruct(s.image, s.procam, s.pattern, options=o)
+    # decision 0151's own offsets off: they leave out a few samples here (test_recon_own_offset)
+    on = reconstruct(s.image, s.procam, s.pattern, options=dataclasses.replace(o, sheet_precision=SheetPrecisionOptions(own_offset=False)))
     off = reconstruct(s.image, s.procam, s.pattern, options=dataclasses.replace(o, sheet_precision=SheetPrecisionOptions(enabled=False)))
     assert on.stats["samples_imprecise"] == 0
     assert np.array_equal(on.points_proj, off.points_proj) and np.array_equal(on.q_cam, off.q_cam)

@@ -153,7 +153,7 @@ def test_one_sided_end_rows_are_the_ends_and_gap_rows_are_written(small_scene_pi
     assert len(ends) == len(acc) == len(c_q) == len(m_out) <= n_ends
     assert len(ends) + int(why.sum()) == n_ends  # every end looked at is a row or a rejection
     # _k_gaps: each returned row's acc and c_q were written (an accepted gap has no crossing to check)
-    _, (n_gaps, gaps, acc_g, c_q_g, why_g) = seen["_k_gaps"]
+    _, (n_gaps, gaps, acc_g, c_q_g, why_g, *_more) = seen["_k_gaps"]  # decision 0149 added the gaps' positions and the lines' boxes
     assert len(gaps) > 10 and acc_g.dtype == np.bool_
     assert set(np.unique(acc_g.view(np.uint8)).tolist()) <= {0, 1}
     assert np.isnan(c_q_g[acc_g]).all()
