@@ -274,3 +274,37 @@ def relook(grid, qx, qy, inv_cs, pad, cx, cy, first, rmax, reach, r0, fam, near,
             near[i] = kn
             dist[i] = dn
 
+
+
+@njit
+def past_blobs(cx, cy, first, n_ring, n_line, near_px, r_att, qx, qy, fam, row_start, v_lo, v_hi, drop):
+    """Samples past the line's own blobs that released the new candidates (decision 0153): for each new candidate
+    (cx, cy from `first` on) and each line's own blob (a candidate before `first`, `n_ring` as in
+    `unsuppressed_seeds`) within `near_px` of it, the samples of the blob's line within `r_att` of the blob on the
+    side away from the new candidate ((q − blob)·(blob − new) > 0) are flagged in `drop` (P,) bool, in place.
+    Returns the number flagged."""
+    n = len(cx)
+    nd = 0
+    for t in range(first, n):
+        for b in range(first):
+            a0, a1 = n_ring[b, 0], n_ring[b, 1]
+            if not (min(a0, a1) == 0 and max(a0, a1) >= n_line):
+                continue
+            ux = cx[b] - cx[t]
+            uy = cy[b] - cy[t]
+            if ux * ux + uy * uy > near_px * near_px:
+                continue
+            f = 1 if a0 > 0 else 2
+            lo = max(int(cy[b] - r_att) - 1, v_lo)
+            hi = min(int(cy[b] + r_att) + 2, v_hi)
+            if lo >= hi:
+                continue
+            for i in range(row_start[lo], row_start[hi]):
+                if fam[i] != f or drop[i]:
+                    continue
+                dx = np.float64(qx[i]) - cx[b]
+                dy = np.float64(qy[i]) - cy[b]
+                if dx * dx + dy * dy <= r_att * r_att and dx * ux + dy * uy > 0:
+                    drop[i] = True
+                    nd += 1
+    return nd
