@@ -285,11 +285,17 @@ def past_blobs(cx, cy, first, n_ring, n_line, near_px, r_att, qx, qy, fam, row_s
     Returns the number flagged."""
     n = len(cx)
     nd = 0
+    own = np.empty(first, np.int64)  # the line's own blobs, listed once
+    no = 0
+    for b in range(first):
+        a0, a1 = n_ring[b, 0], n_ring[b, 1]
+        if min(a0, a1) == 0 and max(a0, a1) >= n_line:
+            own[no] = b
+            no += 1
     for t in range(first, n):
-        for b in range(first):
-            a0, a1 = n_ring[b, 0], n_ring[b, 1]
-            if not (min(a0, a1) == 0 and max(a0, a1) >= n_line):
-                continue
+        for ib in range(no):
+            b = own[ib]
+            a0 = n_ring[b, 0]
             ux = cx[b] - cx[t]
             uy = cy[b] - cy[t]
             if ux * ux + uy * uy > near_px * near_px:
