@@ -494,6 +494,12 @@ def albedo_and_families(u, v, ox, oy, nx, ny, st, xu, xv, xs, Hw, Ww, min_rel, c
 def crossing_seeds(xu, xv, xs, cell, gh, gw):
     """Crossing candidates that are the maximum of `xs` over the 3×3 cells (of `cell` px, (gh, gw) of
     them) around theirs (the grid is dilated only where a candidate looks)."""
+    return crossing_seeds_max(xu, xv, xs, cell, gh, gw)[0]
+
+
+@njit
+def crossing_seeds_max(xu, xv, xs, cell, gh, gw):
+    """`crossing_seeds` and the grid of the cells' maxima it used ((gh, gw) float32, 0: no pixel)."""
     n = len(xs)
     cu = np.empty(n, np.int64)
     cv = np.empty(n, np.int64)
@@ -510,7 +516,7 @@ def crossing_seeds(xu, xv, xs, cell, gh, gw):
             for cc in range(max(cu[k] - 1, 0), min(cu[k] + 2, gw)):
                 best = max(best, m[rr, cc])
         seed[k] = xs[k] >= best
-    return seed
+    return seed, m
 
 
 @njit

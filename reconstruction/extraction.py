@@ -47,6 +47,7 @@ benchmarks/results/bench_extraction.md.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -56,6 +57,7 @@ import cv2
 import numpy as np
 
 from reconstruction import _extract_kernels as _k
+from reconstruction import unsuppressed_seeds as _us
 from reconstruction.crossing_candidates import merge_within, remap_grid
 from reconstruction.corner_junctions import corner_candidates, corner_kinds, dark_beyond
 from reconstruction.junction_arms import retry_trimmed_arms
@@ -115,6 +117,16 @@ class ExtractOptions:
     corner_junctions: a candidate rejected only because one family ends at it (a T, straight arms) is kept as
         a junction (`corner_junctions.py`; stats["junction_corner"] says which). Off: measured not to pay
         (decision 0102). corner_dark: with it, only T's whose stem's missing side is dark (no lit lines there).
+    unsuppressed_seeds: a crossing-score maximum whose ring test fails (no crossing: a wide line's own blob, a spot)
+        suppresses no weaker maximum: the maxima its blob hid are looked for again in its 3×3 cells and kept as
+        candidates where their own ring holds both families and no crossing is within the attachment reach
+        (`unsuppressed_seeds.py`, decision 0152; on by default since decision 0153). Off: every maximum suppresses
+        its 3×3 cells.
+    unsuppressed_past_blob: with unsuppressed_seeds, the samples of a released blob's line within the attachment
+        reach of the blob on its far side from the new candidate it released are no line samples (family 0 in the
+        observation): the blob is light that is neither one line's ridge nor a crossing, and where it lies at a
+        depth edge the new crossing's label would run through it onto another surface's line collinear with its own
+        (`unsuppressed_seeds.past_blobs`, decision 0153; stats["samples_past_blob"]). Off: they are kept.
     """
 
     sigma_px: float | None = None
@@ -137,6 +149,8 @@ class ExtractOptions:
     crossing_eigen_noise: bool = True
     merge_close_candidates: bool = True
     acute_recentre: bool = False
+    unsuppressed_seeds: bool = True
+    unsuppressed_past_blob: bool = True
     debug: bool = False
 
 
@@ -144,7 +158,7 @@ class ExtractOptions:
 class GridObservation:
     """What extraction found in one image.
 
-    Samples (P): q (P, 2) sub-pixel line centres; family (P,) 1 = i-line, 2 = j-line; segment (P,) the
+    Samples (P): q (P, 2) sub-pixel line centres; family (P,) 1 = i-line, 2 = j-line (0: no line sample, decision 0153); segment (P,) the
         segment id or −1 (−1 too for samples a kept junction holds); junction (P,) the kept junction whose
         arms hold the sample, or −1; strength (P,) the ridge's curvature (grey levels / px²).
     Junctions (M): q_junction (M, 2); junction_dir (M, 2, 2) fitted directions of the i- and j-line;
@@ -454,7 +468,10 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     r_att = float(min(r0 + 1.5 * s_w + 2.0, 0.45 * step + 1.0))  # a line reaching this close meets the crossing
     R = float(max(0.6 * step, r_att + 1.0))  # arms (further bounded by the neighbouring junctions)
     gh, gw = int(Hw / cell) + 1, int(Ww / cell) + 1
-    seed = _k.crossing_seeds(xu, xv, xs, cell, gh, gw)
+    if options.unsuppressed_seeds:  # the cells' maxima kept for the second look (0152)
+        seed, cell_max = _k.crossing_seeds_max(xu, xv, xs, cell, gh, gw)
+    else:
+        seed = _k.crossing_seeds(xu, xv, xs, cell, gh, gw)
     if options.debug:
         stats["debug_xpix"] = (xu * scale, xv * scale, xs)
     seeds, seed_score = _k.ordered_seeds(xu, xv, xs, seed)  # weakest first: the strongest seed wins overlaps below
@@ -497,9 +514,39 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         stats["debug_raw_candidates"] = seeds * scale
     # samples near each candidate; a candidate is a crossing only where both families come close
     spacing = np.zeros(len(seeds))  # per kept candidate: the spacing of its row of compressed crossings, 0: none
+    past_blob = None  # samples of a released blob's line past it (0153): not line samples
     if len(seeds) and P:
         near, dist = look_dist(seed_grid, qx32, qy32, seeds, r_att)
         n_ring = _k.ring_counts(near, dist, fam, np.float32(r0), len(seeds))
+        if options.unsuppressed_seeds:  # a maximum that is no crossing suppresses nothing (0152)
+            # a line's own blob: one family only, about one sample per px of the ring on both sides of it
+            ids, masked = _us.unsuppressed_seeds(xu, xv, xs, seed, cell, cell_max, seeds[:, 0].copy(), seeds[:, 1].copy(),
+                                                 n_ring, float(max(r0 + s_w, 1.5)), float(r_att - r0))
+            n_new = 0
+            if len(ids):
+                pos, sc_new = _us.new_candidates(
+                    ids, xu, xv, xs, masked, float(max(r0 + s_w, 1.5)), seeds[:, 0].copy(), seeds[:, 1].copy(), n_ring,
+                    float(r0), float(r_att), qx32, qy32, fam, near, dist, row_start, 0, Hw)
+                n_new = len(pos)
+                if n_new:
+                    n_old = len(seeds)
+                    n_ring_old = n_ring  # the rings the blobs were judged by (relook moves counts)
+                    seeds = np.concatenate([seeds, pos])
+                    seed_score = np.concatenate([seed_score, sc_new])
+                    n_ring = np.concatenate([n_ring, np.zeros((n_new, 2), n_ring.dtype)])
+                    _us.stamp_more(seeds[:, 0].copy(), seeds[:, 1].copy(), n_old, r_att + 1.5, cs, seed_grid, _PAD)
+                    s32n = np.asarray(seeds, np.float32)
+                    _us.relook(seed_grid, qx32, qy32, inv_cs, _PAD, s32n[:, 0].copy(), s32n[:, 1].copy(), n_old,
+                               np.float32(r_att), r_att + 1.5 + 2 * cs, np.float32(r0), fam, near, dist, n_ring, row_start, 0, Hw)
+                    if options.unsuppressed_past_blob:  # the released blob's line past it is not used (0153)
+                        past_blob = np.zeros(P, np.bool_)
+                        stats["samples_past_blob"] = int(_us.past_blobs(
+                            seeds[:, 0].copy(), seeds[:, 1].copy(), n_old, n_ring_old, float(r_att - r0),
+                            float(2.0 * cell + max(r0 + s_w, 1.5)) * math.sqrt(2.0), float(r_att), qx32, qy32, fam,
+                            row_start, 0, Hw, past_blob))
+            stats["junction_candidates_unsuppressed"] = int(n_new)
+            if options.debug:
+                stats["debug_raw_candidates"] = seeds * scale
         if options.debug:
             stats["debug_ring_own"] = n_ring
         if options.shared_arms and scale == 1:  # crossings a few px apart share their ring samples (0120)
@@ -684,7 +731,7 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
 
     return GridObservation(
         q=q if scale == 1 else q * scale,
-        family=fam,
+        family=fam if past_blob is None else np.where(past_blob, 0, fam).astype(fam.dtype),
         segment=seg_out,
         junction=sample_junction,
         strength=strength64,
