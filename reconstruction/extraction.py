@@ -61,6 +61,7 @@ from reconstruction.corner_junctions import corner_candidates, corner_kinds, dar
 from reconstruction.junction_arms import retry_trimmed_arms
 from reconstruction.acute_recentre import acute_retry, recentre_acute
 from reconstruction.rigmodel import RigModel
+from reconstruction.crossing_pull import unpull_samples
 
 
 @dataclass(frozen=True)
@@ -115,6 +116,10 @@ class ExtractOptions:
     corner_junctions: a candidate rejected only because one family ends at it (a T, straight arms) is kept as
         a junction (`corner_junctions.py`; stats["junction_corner"] says which). Off: measured not to pay
         (decision 0102). corner_dark: with it, only T's whose stem's missing side is dark (no lit lines there).
+    crossing_pull: a sample a kept junction's arm holds is moved back by the first-order pull of the other
+        family's line (its blurred profile adds a slope across the sample's ridge next to the crossing;
+        `crossing_pull.py`, decision 0154), computed from the junction's two fitted lines; samples closer than
+        crossing_pull_min_sigma·σ to the other line (where the two ridges merge) are not moved. Off: the ridge centres.
     """
 
     sigma_px: float | None = None
@@ -137,6 +142,8 @@ class ExtractOptions:
     crossing_eigen_noise: bool = True
     merge_close_candidates: bool = True
     acute_recentre: bool = False
+    crossing_pull: bool = True
+    crossing_pull_min_sigma: float = 1.0
     debug: bool = False
 
 
@@ -677,13 +684,18 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         float(model.pattern.n2), M)
     stats["edges_skipping"] = int(n_skip)
     stats["edges"] = int(len(edges))
+    q_out = q if scale == 1 else q * scale
+    if options.crossing_pull and M:  # the other line's pull on the samples the junctions' arms hold (0154)
+        q_out, stats["samples_unpulled"] = unpull_samples(
+            q_out, fam, sample_junction, q_junction * scale, junction_dir, sigma, model.line_width_cam_px,
+            options.crossing_pull_min_sigma)
     t5 = time.perf_counter()
     ms["edges"] = 1e3 * (t5 - t4)
     ms["total"] = 1e3 * (t5 - t0)
     stats["ms"] = ms
 
     return GridObservation(
-        q=q if scale == 1 else q * scale,
+        q=q_out,
         family=fam,
         segment=seg_out,
         junction=sample_junction,

@@ -1,0 +1,74 @@
+"""The other line's pull on a line's samples next to a crossing, taken out (decision 0154).
+
+Near a crossing the two lines' smoothed profiles overlap: line B's light adds a slope across line A, and A's
+ridge (Steger's centre) moves towards B. With both profiles approximated by one Gaussian of width σ_e
+(σ_e² = σ² + w²/12, σ the extraction's smoothing, w the line width in the camera) and equal peak brightness,
+A's ridge at signed distance s across B (camera px along B's normal n_B) moves along A's normal n_A by
+
+    t = −(n_A · n_B) · s · exp(−s² / (2 σ_e²))
+
+to first order (decision 0073's formula, the ridge's curvature −a/σ_e² against the slope B adds), zero at right
+angles, largest at s = σ_e, valid where s is at least about σ (closer, the two ridges merge; those samples are
+in the label stage's mixing zone). A sample a kept junction's arm holds knows B's line: the junction's fitted
+intersection and the other family's fitted direction. The correction moves it by −t along n_A (its own
+family's fitted direction's normal); samples closer than `min_sigma`·σ to B are not moved.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from reconstruction._jit import njit
+
+
+@njit
+def _k_unpull(q, family, junction, q_junction, junction_dir, sigma_e, s_min, out):
+    """q (P, 2) float64 samples (camera px), family (P,) 1/2, junction (P,) kept junction id or −1,
+    q_junction (M, 2), junction_dir (M, 2, 2) unit directions of the i- and j-line; writes the corrected
+    samples to out (P, 2) (a copy of q where nothing moves); returns the number moved."""
+    P = q.shape[0]
+    inv2 = 0.5 / (sigma_e * sigma_e)
+    n = 0
+    for i in range(P):
+        out[i, 0] = q[i, 0]
+        out[i, 1] = q[i, 1]
+        j = junction[i]
+        f = family[i]
+        if j < 0 or f < 1 or f > 2:
+            continue
+        a = f - 1
+        b = 1 - a
+        # normals (−dy, dx) of the sample's own line (A) and of the other family's line (B) at the junction
+        nax = -junction_dir[j, a, 1]
+        nay = junction_dir[j, a, 0]
+        nbx = -junction_dir[j, b, 1]
+        nby = junction_dir[j, b, 0]
+        s = (q[i, 0] - q_junction[j, 0]) * nbx + (q[i, 1] - q_junction[j, 1]) * nby
+        if not (abs(s) >= s_min):
+            continue
+        c = nax * nbx + nay * nby
+        k = c * s * math.exp(-s * s * inv2)
+        if not math.isfinite(k):
+            continue
+        out[i, 0] = q[i, 0] + k * nax
+        out[i, 1] = q[i, 1] + k * nay
+        n += 1
+    return n
+
+
+def unpull_samples(q: np.ndarray, family: np.ndarray, junction: np.ndarray, q_junction: np.ndarray,
+                   junction_dir: np.ndarray, sigma_px: float, line_width_px: float, min_sigma: float = 1.0) -> tuple[np.ndarray, int]:
+    """The samples with the other line's first-order pull taken out (module docstring); (q', number moved).
+    sigma_px: the extraction's smoothing, line_width_px: the line width in the camera (both camera px)."""
+    q = np.ascontiguousarray(q, np.float64)
+    out = np.empty_like(q)
+    if len(q) == 0 or len(q_junction) == 0:
+        out[:] = q
+        return out, 0
+    sigma_e = math.sqrt(sigma_px * sigma_px + line_width_px * line_width_px / 12.0)
+    n = _k_unpull(q, np.ascontiguousarray(family), np.ascontiguousarray(junction, np.int64),
+                  np.ascontiguousarray(q_junction, np.float64), np.ascontiguousarray(junction_dir, np.float64),
+                  float(sigma_e), float(min_sigma * sigma_px), out)
+    return out, int(n)
