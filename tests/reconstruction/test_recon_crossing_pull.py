@@ -30,18 +30,19 @@ def test_unpull_moves_by_the_first_order_pull_along_the_own_normal():
     nA, nB = np.array([-dA[1], dA[0]]), np.array([-dB[1], dB[0]])
     qj = np.array([[100.0, 50.0]])
     jd = np.array([[dA, dB]])
-    ts = np.array([-6.0, -3.0, -2.0, -1.2, -0.5, 0.5, 1.2, 2.0, 3.0, 6.0])  # along A from the junction
+    ts = np.array([-12.0, -6.0, -3.0, -2.0, -1.2, -0.5, 0.5, 1.2, 2.0, 3.0, 6.0])  # along A from the junction
     q = qj[0] + ts[:, None] * dA
     fam = np.ones(len(ts), np.int64)
     jun = np.zeros(len(ts), np.int64)
     out, n = unpull_samples(q, fam, jun, qj, jd, sigma, w, 1.0)
     s = (q - qj[0]) @ nB
     c = nA @ nB
-    expect = np.where(np.abs(s) >= sigma, c * s * np.exp(-s**2 / (2 * se**2)), 0.0)
+    expect = np.where((np.abs(s) >= sigma) & (np.abs(s) <= 4 * se), c * s * np.exp(-s**2 / (2 * se**2)), 0.0)
+    assert np.abs(s).max() > 4 * se  # one beyond the cut-off
     moved = (out - q) @ nA
     np.testing.assert_allclose(moved, expect, atol=1e-12)
     np.testing.assert_allclose((out - q) @ dA, 0.0, atol=1e-12)  # only across the own line
-    assert n == int((np.abs(s) >= sigma).sum()) and 0 < n < len(ts)
+    assert n == int(((np.abs(s) >= sigma) & (np.abs(s) <= 4 * se)).sum()) and 0 < n < len(ts)
     # a j-line sample uses the i-line as the other line
     qb = qj[0] + 2.5 * dB
     outb, _ = unpull_samples(qb[None], np.array([2]), np.array([0]), qj, jd, sigma, w, 1.0)
@@ -50,6 +51,13 @@ def test_unpull_moves_by_the_first_order_pull_along_the_own_normal():
     # no junction, or lines at right angles: not moved
     out2, n2 = unpull_samples(q, fam, np.full(len(ts), -1), qj, jd, sigma, w, 1.0)
     assert n2 == 0 and np.array_equal(out2, q)
+    # the positions to triangulate: unpulled where the label stage left the sample, else the label stage's
+    from reconstruction.crossing_pull import triangulated_positions
+
+    ql = q.copy()
+    ql[3] += [0.0, 0.7]  # a snapped sample
+    tp = triangulated_positions(ql, q, out)
+    assert np.array_equal(tp[3], ql[3]) and np.array_equal(np.delete(tp, 3, 0), np.delete(out, 3, 0))
     out3, _ = unpull_samples(q, fam, jun, qj, np.array([[dA, np.array([-dA[1], dA[0]])]]), sigma, w, 1.0)
     np.testing.assert_allclose(out3, q, atol=1e-12)
 
@@ -102,12 +110,12 @@ def scene_148():
     return procam, pattern, image, truth, depth_range(procam, scene)
 
 
-def _side_offsets(obs, truth, pattern):
+def _side_offsets(obs, q, truth, pattern):
     """Each junction-held sample's signed distance (projector px) from the nearest line of its family."""
     from benchmarks._common import sample_bilinear
 
     m = obs.junction >= 0
-    p = sample_bilinear(truth.q_proj, obs.q[m].astype(float)) - np.asarray(pattern.centre_px)
+    p = sample_bilinear(truth.q_proj, q[m].astype(float)) - np.asarray(pattern.centre_px)
     fam = obs.family[m]
     out = np.full(len(p), np.nan)
     for f, n in ((1, pattern.n1), (2, pattern.n2)):
@@ -131,15 +139,17 @@ def test_unseen_148_junction_samples_closer_to_their_lines_and_points_more_accur
     assert ExtractOptions().crossing_pull
     off = extract_grid(image, model, options=ExtractOptions(crossing_pull=False))
     on = extract_grid(image, model)
+    assert off.q_unpulled is None
     assert on.stats["samples_unpulled"] > 0.3 * (on.junction >= 0).sum()
-    a0 = np.abs(_side_offsets(off, truth, pattern))
-    a1 = np.abs(_side_offsets(on, truth, pattern))
+    a0 = np.abs(_side_offsets(off, off.q, truth, pattern))
+    a1 = np.abs(_side_offsets(on, on.q_unpulled, truth, pattern))
     ok = np.isfinite(a0) & np.isfinite(a1) & (a0 < 1.5)
     assert np.percentile(a1[ok], 99) < 0.5 * np.percentile(a0[ok], 99)
     assert np.mean(a1[ok] > 0.15) < 0.2 * np.mean(a0[ok] > 0.15)
-    # only the junction-held samples move
+    # the label stage's samples are the ridge centres as before; only the junction-held samples move
+    assert np.array_equal(on.q, off.q)
     free = off.junction < 0
-    assert np.array_equal(on.q[free], off.q[free])
+    assert np.array_equal(on.q_unpulled[free], off.q[free])
 
     o = ReconstructOptions(depth_min_mm=dr[0], depth_max_mm=dr[1])
     r_off = reconstruct(image, procam, pattern, options=dataclasses.replace(o, extract=ExtractOptions(crossing_pull=False)))
@@ -148,4 +158,5 @@ def test_unseen_148_junction_samples_closer_to_their_lines_and_points_more_accur
     e_on = relative_errors(r_on.points_proj, r_on.q_cam, truth)
     assert np.percentile(e_on, 99) < 0.8 * np.percentile(e_off, 99)
     assert np.mean(e_on > 0.01) <= np.mean(e_off > 0.01)
-    assert r_on.n_points >= r_off.n_points
+    assert r_on.n_points >= r_off.n_points  # fewer samples left out as imprecise (decision 0151)
+    assert np.array_equal(r_on.junction_labels, r_off.junction_labels)  # the labels are the same
