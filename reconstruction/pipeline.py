@@ -393,10 +393,11 @@ def _triangulate(
     family_s = obs.family
     if sl is not None and len(sl.index):
         q_s, index_s, junction_s = sl.q, sl.index, sl.junction
-        if obs.q_unpulled is not None and obs.q_unpulled is not obs.q:
+        q_unpulled = getattr(obs, "q_unpulled", None)  # observations built without it (tests): none
+        if q_unpulled is not None and q_unpulled is not obs.q:
             # the samples the label stage left at their ridge centre, with the other line's pull next to a
             # crossing taken out (decision 0154); snapped and gap-filled samples keep their positions
-            q_s = triangulated_positions(q_s, obs.q, obs.q_unpulled)
+            q_s = triangulated_positions(q_s, obs.q, q_unpulled)
         if cp is not None and len(cp.index):
             # the crossing points (decision 0086) after the samples
             q_s = np.concatenate([q_s, cp.q])
