@@ -97,3 +97,70 @@ def unpull_samples(q: np.ndarray, family: np.ndarray, junction: np.ndarray, q_ju
                   np.ascontiguousarray(q_junction, np.float64), np.ascontiguousarray(junction_dir, np.float64),
                   float(sigma_e), float(min_sigma * sigma_px), out)
     return out, int(n)
+
+
+@njit
+def _k_untilted_dirs(q, family, junction, q_junction, junction_dir, sigma_e, s_min, out_dir):
+    """The junctions' fitted directions without the tilt the pull put into them (development option, decision
+    0154's open lead): each arm's samples are pulled by −k along its normal (k as in `_k_unpull`); a straight
+    least-squares fit turns by cov(−k, u) / var(u) (u the position along the arm), so the direction is turned
+    back by that. out_dir (M, 2, 2) is written."""
+    M = q_junction.shape[0]
+    acc = np.zeros((M, 2, 5))  # n, Σu, Σk, Σku, Σuu
+    inv2 = 0.5 / (sigma_e * sigma_e)
+    s_max2 = 16.0 * sigma_e * sigma_e
+    s_min2 = s_min * s_min
+    for i in range(q.shape[0]):
+        j = junction[i]
+        f = family[i]
+        if j < 0 or f < 1 or f > 2:
+            continue
+        a = f - 1
+        b = 1 - a
+        dx = q[i, 0] - q_junction[j, 0]
+        dy = q[i, 1] - q_junction[j, 1]
+        u = dx * junction_dir[j, a, 0] + dy * junction_dir[j, a, 1]
+        nbx = -junction_dir[j, b, 1]
+        nby = junction_dir[j, b, 0]
+        s = dx * nbx + dy * nby
+        s2 = s * s
+        k = 0.0
+        if s2 >= s_min2 and s2 <= s_max2:
+            k = (-junction_dir[j, a, 1] * nbx + junction_dir[j, a, 0] * nby) * s * math.exp(-s2 * inv2)
+            if not math.isfinite(k):
+                k = 0.0
+        acc[j, a, 0] += 1.0
+        acc[j, a, 1] += u
+        acc[j, a, 2] += k
+        acc[j, a, 3] += k * u
+        acc[j, a, 4] += u * u
+    for j in range(M):
+        for a in range(2):
+            dx = junction_dir[j, a, 0]
+            dy = junction_dir[j, a, 1]
+            n = acc[j, a, 0]
+            m = 0.0
+            if n >= 3.0:
+                mu = acc[j, a, 1] / n
+                var = acc[j, a, 4] / n - mu * mu
+                if var > 1e-9:
+                    m = (acc[j, a, 3] / n - mu * acc[j, a, 2] / n) / var
+            # turned towards the normal (−dy, dx) by m
+            ex = dx - m * dy
+            ey = dy + m * dx
+            l = math.sqrt(ex * ex + ey * ey)
+            out_dir[j, a, 0] = ex / l
+            out_dir[j, a, 1] = ey / l
+
+
+def untilted_dirs(q, family, junction, q_junction, junction_dir, sigma_px: float, line_width_px: float,
+                  min_sigma: float = 1.0) -> np.ndarray:
+    """`_k_untilted_dirs`: the junctions' directions with the pull's tilt taken out."""
+    out = np.array(junction_dir, np.float64, copy=True)
+    if len(q) == 0 or len(q_junction) == 0:
+        return out
+    sigma_e = math.sqrt(sigma_px * sigma_px + line_width_px * line_width_px / 12.0)
+    _k_untilted_dirs(np.ascontiguousarray(q, np.float64), np.ascontiguousarray(family),
+                     np.ascontiguousarray(junction, np.int64), np.ascontiguousarray(q_junction, np.float64),
+                     np.ascontiguousarray(junction_dir, np.float64), float(sigma_e), float(min_sigma * sigma_px), out)
+    return out

@@ -61,7 +61,7 @@ from reconstruction.corner_junctions import corner_candidates, corner_kinds, dar
 from reconstruction.junction_arms import retry_trimmed_arms
 from reconstruction.acute_recentre import acute_retry, recentre_acute
 from reconstruction.rigmodel import RigModel
-from reconstruction.crossing_pull import unpull_samples
+from reconstruction.crossing_pull import unpull_samples, untilted_dirs
 
 
 @dataclass(frozen=True)
@@ -147,6 +147,7 @@ class ExtractOptions:
     crossing_pull: bool = True
     crossing_pull_min_sigma: float = 1.0
     crossing_pull_in_labels: bool = False
+    crossing_pull_untilt: bool = False
     debug: bool = False
 
 
@@ -693,8 +694,12 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     q_out = q if scale == 1 else q * scale
     q_unpulled = None
     if options.crossing_pull and M:  # the other line's pull on the samples the junctions' arms hold (0154)
+        dirs = junction_dir
+        if options.crossing_pull_untilt:  # development option (0154's open lead): the fits' tilt taken out first
+            dirs = untilted_dirs(q_out, fam, sample_junction, q_junction * scale, junction_dir, sigma,
+                                 model.line_width_cam_px, options.crossing_pull_min_sigma)
         q_unpulled, stats["samples_unpulled"] = unpull_samples(
-            q_out, fam, sample_junction, q_junction * scale, junction_dir, sigma, model.line_width_cam_px,
+            q_out, fam, sample_junction, q_junction * scale, dirs, sigma, model.line_width_cam_px,
             options.crossing_pull_min_sigma)
         if options.crossing_pull_in_labels:
             q_out = q_unpulled

@@ -160,3 +160,30 @@ def test_unseen_148_junction_samples_closer_to_their_lines_and_points_more_accur
     assert np.mean(e_on > 0.01) <= np.mean(e_off > 0.01)
     assert r_on.n_points >= r_off.n_points  # fewer samples left out as imprecise (decision 0151)
     assert np.array_equal(r_on.junction_labels, r_off.junction_labels)  # the labels are the same
+
+
+def test_untilted_dirs_turn_a_fit_tilted_by_the_pull_back_towards_the_true_line():
+    """Arm samples of a 70° crossing displaced by the pull, on one side of the junction only (an arm whose other
+    side is short): their straight fit is tilted; `untilted_dirs` turns it back (development option)."""
+    from reconstruction.crossing_pull import untilted_dirs
+
+    sigma, w = 1.5, 3.0
+    se = math.sqrt(sigma**2 + w**2 / 12)
+    dA, dB = _unit(0.0), _unit(70.0)
+    nA, nB = np.array([-dA[1], dA[0]]), np.array([-dB[1], dB[0]])
+    u = np.concatenate([np.linspace(2.0, 9.0, 15), np.linspace(-3.0, -2.0, 3)])
+    q_true = u[:, None] * dA
+    s = q_true @ nB
+    c = nA @ nB
+    pull = -c * s * np.exp(-s**2 / (2 * se**2)) * (np.abs(s) >= sigma)
+    q = q_true + pull[:, None] * nA
+    slope = np.polyfit(q @ dA, q @ nA, 1)[0]  # the arm's straight fit
+    dfit = dA + slope * nA
+    dfit /= np.linalg.norm(dfit)
+    jd = np.array([[dfit, dB]])
+    ang_fit = abs(math.degrees(math.atan2(dfit[1], dfit[0])))
+    assert ang_fit > 0.3  # the pull tilts the fit
+    out = untilted_dirs(q, np.ones(len(q), np.int64), np.zeros(len(q), np.int64), np.zeros((1, 2)), jd, sigma, w, 1.0)
+    ang = abs(math.degrees(math.atan2(out[0, 0, 1], out[0, 0, 0])))
+    assert ang < 0.5 * ang_fit
+    np.testing.assert_allclose(out[0, 1], dB, atol=1e-12)  # no B samples: B's direction unchanged
