@@ -63,6 +63,7 @@ from reconstruction.corner_junctions import corner_candidates, corner_kinds, dar
 from reconstruction.junction_arms import retry_trimmed_arms
 from reconstruction.acute_recentre import acute_retry, recentre_acute
 from reconstruction.rigmodel import RigModel
+from reconstruction.crossing_pull import unpull_samples, untilted_dirs
 
 
 @dataclass(frozen=True)
@@ -127,6 +128,12 @@ class ExtractOptions:
         observation): the blob is light that is neither one line's ridge nor a crossing, and where it lies at a
         depth edge the new crossing's label would run through it onto another surface's line collinear with its own
         (`unsuppressed_seeds.past_blobs`, decision 0153; stats["samples_past_blob"]). Off: they are kept.
+    crossing_pull: a sample a kept junction's arm holds is moved back by the first-order pull of the other
+        family's line (its blurred profile adds a slope across the sample's ridge next to the crossing;
+        `crossing_pull.py`, decision 0154), computed from the junction's two fitted lines; samples closer than
+        crossing_pull_min_sigma·σ to the other line (where the two ridges merge) are not moved. The moved positions
+        are `GridObservation.q_unpulled`, which the pipeline triangulates; `q` stays the ridge centres the label stage
+        works on unless crossing_pull_in_labels (measured: a few labels change, decision 0154). Off: no q_unpulled.
     """
 
     sigma_px: float | None = None
@@ -151,6 +158,10 @@ class ExtractOptions:
     acute_recentre: bool = False
     unsuppressed_seeds: bool = True
     unsuppressed_past_blob: bool = True
+    crossing_pull: bool = True
+    crossing_pull_min_sigma: float = 1.0
+    crossing_pull_in_labels: bool = False
+    crossing_pull_untilt: bool = False
     debug: bool = False
 
 
@@ -171,6 +182,8 @@ class GridObservation:
     segment_linked (P,) int: the segment each sample was linked into before kept junctions, free-end trims
         and biased crossings took samples out of it (−1: a crossing's core or a single sample); the label
         stage's trace pieces are built from it (decision 0085). None where an observation was made without.
+    q_unpulled (P, 2) or None: q with the other line's pull next to a crossing taken out (`ExtractOptions.crossing_pull`,
+        decision 0154); the pipeline triangulates the line samples the label stage left where they were from it.
     """
 
     q: np.ndarray
@@ -192,6 +205,7 @@ class GridObservation:
     stats: dict
     junction_rms: np.ndarray | None = None
     segment_linked: np.ndarray | None = None
+    q_unpulled: np.ndarray | None = None
 
 
 def to_grey_float(image: np.ndarray) -> np.ndarray:
@@ -724,13 +738,25 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         float(model.pattern.n2), M)
     stats["edges_skipping"] = int(n_skip)
     stats["edges"] = int(len(edges))
+    q_out = q if scale == 1 else q * scale
+    q_unpulled = None
+    if options.crossing_pull and M:  # the other line's pull on the samples the junctions' arms hold (0154)
+        dirs = junction_dir
+        if options.crossing_pull_untilt:  # development option (0154's open lead): the fits' tilt taken out first
+            dirs = untilted_dirs(q_out, fam, sample_junction, q_junction * scale, junction_dir, sigma,
+                                 model.line_width_cam_px, options.crossing_pull_min_sigma)
+        q_unpulled, stats["samples_unpulled"] = unpull_samples(
+            q_out, fam, sample_junction, q_junction * scale, dirs, sigma, model.line_width_cam_px,
+            options.crossing_pull_min_sigma)
+        if options.crossing_pull_in_labels:
+            q_out = q_unpulled
     t5 = time.perf_counter()
     ms["edges"] = 1e3 * (t5 - t4)
     ms["total"] = 1e3 * (t5 - t0)
     stats["ms"] = ms
 
     return GridObservation(
-        q=q if scale == 1 else q * scale,
+        q=q_out,
         family=fam if past_blob is None else np.where(past_blob, 0, fam).astype(fam.dtype),
         segment=seg_out,
         junction=sample_junction,
@@ -749,4 +775,5 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
         stats=stats,
         junction_rms=junction_rms,
         segment_linked=seg,
+        q_unpulled=q_unpulled,
     )

@@ -30,6 +30,7 @@ from reconstruction.border_fill import BorderFillOptions, with_border
 from reconstruction.crossing_fill import CrossingFillOptions, CrossingPoints, family_grid, fill_crossings, fill_grid_cell_px
 from reconstruction.crossing_fill_one_sided import OneSidedFillOptions, with_one_sided
 from reconstruction.extraction import ExtractOptions, GridObservation, extract_grid, sigma_for
+from reconstruction.crossing_pull import triangulated_positions
 from reconstruction.geometry import triangulate_rays
 from reconstruction.labelling import (LabelOptions, Labels, SampleLabels, SamplePrep, TraceOptions, label_epipolar, label_paper,
                                       label_samples, prepare_samples, trace_grid_cell_px)
@@ -392,6 +393,11 @@ def _triangulate(
     family_s = obs.family
     if sl is not None and len(sl.index):
         q_s, index_s, junction_s = sl.q, sl.index, sl.junction
+        q_unpulled = getattr(obs, "q_unpulled", None)  # observations built without it (tests): none
+        if q_unpulled is not None and q_unpulled is not obs.q:
+            # the samples the label stage left at their ridge centre, with the other line's pull next to a
+            # crossing taken out (decision 0154); snapped and gap-filled samples keep their positions
+            q_s = triangulated_positions(q_s, obs.q, q_unpulled)
         if cp is not None and len(cp.index):
             # the crossing points (decision 0086) after the samples
             q_s = np.concatenate([q_s, cp.q])
