@@ -24,6 +24,26 @@ import numpy as np
 from reconstruction._jit import njit
 
 
+def _sigma_e(sigma_px: float, line_width_px: float) -> float:
+    """The width of the one Gaussian both lines' smoothed profiles are taken as (module doc)."""
+    return math.sqrt(sigma_px * sigma_px + line_width_px * line_width_px / 12.0)
+
+
+@njit
+def _pull(dx, dy, junction_dir, j, a, inv2, s_min2, s_max2):
+    """The pull t along line A's normal (module doc) on a sample at (dx, dy) from junction j, A = family a + 1 (0-based
+    a), B the other family; NaN where |s| is outside [s_min, s_max] (and where t is not finite)."""
+    b = 1 - a
+    # normals (−dy, dx) of the sample's own line (A) and of the other family's line (B) at the junction
+    nbx = -junction_dir[j, b, 1]
+    nby = junction_dir[j, b, 0]
+    s = dx * nbx + dy * nby
+    s2 = s * s
+    if not (s2 >= s_min2 and s2 <= s_max2):
+        return math.nan
+    return (-junction_dir[j, a, 1] * nbx + junction_dir[j, a, 0] * nby) * s * math.exp(-s2 * inv2)
+
+
 @njit
 def _k_unpull(q, family, junction, q_junction, junction_dir, sigma_e, s_min, out):
     """q (P, 2) float64 samples (camera px), family (P,) 1/2, junction (P,) kept junction id or −1,
@@ -44,21 +64,11 @@ def _k_unpull(q, family, junction, q_junction, junction_dir, sigma_e, s_min, out
         if f < 1 or f > 2:
             continue
         a = f - 1
-        b = 1 - a
-        # normals (−dy, dx) of the sample's own line (A) and of the other family's line (B) at the junction
-        nbx = -junction_dir[j, b, 1]
-        nby = junction_dir[j, b, 0]
-        s = (q[i, 0] - q_junction[j, 0]) * nbx + (q[i, 1] - q_junction[j, 1]) * nby
-        s2 = s * s
-        if not (s2 >= s_min2 and s2 <= s_max2):
-            continue
-        nax = -junction_dir[j, a, 1]
-        nay = junction_dir[j, a, 0]
-        k = (nax * nbx + nay * nby) * s * math.exp(-s2 * inv2)
+        k = _pull(q[i, 0] - q_junction[j, 0], q[i, 1] - q_junction[j, 1], junction_dir, j, a, inv2, s_min2, s_max2)
         if not math.isfinite(k):
             continue
-        out[i, 0] = q[i, 0] + k * nax
-        out[i, 1] = q[i, 1] + k * nay
+        out[i, 0] = q[i, 0] + k * -junction_dir[j, a, 1]
+        out[i, 1] = q[i, 1] + k * junction_dir[j, a, 0]
         n += 1
     return n
 
@@ -92,7 +102,7 @@ def unpull_samples(q: np.ndarray, family: np.ndarray, junction: np.ndarray, q_ju
     out = q.copy()
     if len(q) == 0 or len(q_junction) == 0:
         return out, 0
-    sigma_e = math.sqrt(sigma_px * sigma_px + line_width_px * line_width_px / 12.0)
+    sigma_e = _sigma_e(sigma_px, line_width_px)
     n = _k_unpull(q, np.ascontiguousarray(family), np.ascontiguousarray(junction, np.int64),
                   np.ascontiguousarray(q_junction, np.float64), np.ascontiguousarray(junction_dir, np.float64),
                   float(sigma_e), float(min_sigma * sigma_px), out)
@@ -116,19 +126,12 @@ def _k_untilted_dirs(q, family, junction, q_junction, junction_dir, sigma_e, s_m
         if j < 0 or f < 1 or f > 2:
             continue
         a = f - 1
-        b = 1 - a
         dx = q[i, 0] - q_junction[j, 0]
         dy = q[i, 1] - q_junction[j, 1]
         u = dx * junction_dir[j, a, 0] + dy * junction_dir[j, a, 1]
-        nbx = -junction_dir[j, b, 1]
-        nby = junction_dir[j, b, 0]
-        s = dx * nbx + dy * nby
-        s2 = s * s
-        k = 0.0
-        if s2 >= s_min2 and s2 <= s_max2:
-            k = (-junction_dir[j, a, 1] * nbx + junction_dir[j, a, 0] * nby) * s * math.exp(-s2 * inv2)
-            if not math.isfinite(k):
-                k = 0.0
+        k = _pull(dx, dy, junction_dir, j, a, inv2, s_min2, s_max2)
+        if not math.isfinite(k):
+            k = 0.0
         acc[j, a, 0] += 1.0
         acc[j, a, 1] += u
         acc[j, a, 2] += k
@@ -159,7 +162,7 @@ def untilted_dirs(q, family, junction, q_junction, junction_dir, sigma_px: float
     out = np.array(junction_dir, np.float64, copy=True)
     if len(q) == 0 or len(q_junction) == 0:
         return out
-    sigma_e = math.sqrt(sigma_px * sigma_px + line_width_px * line_width_px / 12.0)
+    sigma_e = _sigma_e(sigma_px, line_width_px)
     _k_untilted_dirs(np.ascontiguousarray(q, np.float64), np.ascontiguousarray(family),
                      np.ascontiguousarray(junction, np.int64), np.ascontiguousarray(q_junction, np.float64),
                      np.ascontiguousarray(junction_dir, np.float64), float(sigma_e), float(min_sigma * sigma_px), out)
