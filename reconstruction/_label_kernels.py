@@ -1370,6 +1370,91 @@ def sample_grid_cells(q, valid, fam, cell):
 
 
 @njit
+def sample_grid_cells_two(q, valid, fam, cell, cell_f):
+    """`sample_grid_cells(q, valid, fam, cell)` and `crossing_fill._family_grid(q, fam, cell_f)` of the same samples in
+    one kernel (decision 0156): valid must be the samples of family 1 or 2 with a finite position (`sample_cells`'
+    valid), the set `_family_grid` keeps, so both grids have the same origin (the valid samples' smallest x and
+    y). One pass for the extent, one for both grids' cells and counts, one for both item lists; each grid's
+    cells, clamping and items are computed by the same operations as in its own kernel. Returns
+    ((x0, y0, gw, gh, start, items), (x0, y0, gw_f, gh_f, start_f, mid_f, items_f))."""
+    P = q.shape[0]
+    x0 = np.inf
+    y0 = np.inf
+    x1 = -np.inf
+    y1 = -np.inf
+    nv = 0
+    for s in range(P):
+        if valid[s]:
+            x0 = min(x0, q[s, 0])
+            y0 = min(y0, q[s, 1])
+            x1 = max(x1, q[s, 0])
+            y1 = max(y1, q[s, 1])
+            nv += 1
+    if nv == 0:
+        x0 = 0.0
+        y0 = 0.0
+        x1 = 0.0
+        y1 = 0.0
+    gw = int((x1 - x0) / cell) + 1
+    gh = int((y1 - y0) / cell) + 1
+    gwf = int((x1 - x0) / cell_f) + 1
+    ghf = int((y1 - y0) / cell_f) + 1
+    nc = gw * gh
+    ncf = gwf * ghf
+    key = np.empty(P, np.intp)
+    keyf = np.empty(P, np.intp)
+    start = np.zeros(2 * nc + 1, np.intp)
+    startf = np.zeros(ncf + 1, np.intp)
+    n1 = np.zeros(nc, np.intp)
+    n1f = np.zeros(ncf, np.intp)
+    for s in range(P):
+        if valid[s]:
+            b = min(max(int(math.floor((q[s, 1] - y0) / cell)), 0), gh - 1) * gw + min(max(int(math.floor((q[s, 0] - x0) / cell)), 0), gw - 1)
+            bf = (min(max(int(math.floor((q[s, 1] - y0) / cell_f)), 0), ghf - 1) * gwf
+                  + min(max(int(math.floor((q[s, 0] - x0) / cell_f)), 0), gwf - 1))
+            key[s] = b
+            keyf[s] = bf
+            start[b + 1] += 1
+            startf[bf + 1] += 1
+            if fam[s] == 1:
+                n1[b] += 1
+                n1f[bf] += 1
+    for k in range(nc):
+        start[k + 1] += start[k]
+    for k in range(ncf):
+        startf[k + 1] += startf[k]
+    fill1 = np.empty(nc, np.intp)
+    fill2 = np.empty(nc, np.intp)
+    for k in range(nc):
+        fill1[k] = start[k]
+        fill2[k] = start[k] + n1[k]
+        start[nc + 1 + k] = fill2[k]
+    fill1f = np.empty(ncf, np.intp)
+    midf = np.empty(ncf, np.intp)
+    for k in range(ncf):
+        fill1f[k] = startf[k]
+        midf[k] = startf[k] + n1f[k]
+    fill2f = midf.copy()
+    items = np.empty(nv, np.intp)
+    itemsf = np.empty(nv, np.intp)
+    for s in range(P):
+        if valid[s]:
+            b = key[s]
+            bf = keyf[s]
+            if fam[s] == 1:
+                items[fill1[b]] = s
+                fill1[b] += 1
+                itemsf[fill1f[bf]] = s
+                fill1f[bf] += 1
+            else:
+                items[fill2[b]] = s
+                fill2[b] += 1
+                itemsf[fill2f[bf]] = s
+                fill2f[bf] += 1
+    return (x0, y0, gw, gh, start, items), (x0, y0, gwf, ghf, startf, midf, itemsf)
+
+
+@njit
 def crossing_hits_traces(e, te, sign, fe, q, sid, tangent, fam, index, labelled_only, radius, sin_min,
                          x0, y0, cell, gw, gh, start, items, pos_of):
     """The crossing at each piece end (the former kernel `crossing_hits`, now the reference in
