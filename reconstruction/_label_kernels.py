@@ -1086,6 +1086,55 @@ def _rint_f32(typingctx, a):
     return sig, codegen
 
 
+_READ_BLOCK = 64  # points read at once by `_bilinear_u8_block` (decision 0156)
+
+
+@njit
+def _bilinear_u8_block(fl, W, H, xs, ys, m, idx, a, out):
+    """out[:m] = the value cv2.remap(img, x, y, INTER_LINEAR, borderMode=BORDER_REPLICATE) gives at the float32
+    map coordinates (xs, ys)[:m] (finite) of the uint8 image img (H, W), flattened to fl (see `ridge_brightness_u8`
+    for the arithmetic). In three loops over the points (decision 0156): the fractions and the four clipped pixel
+    indices, the four reads, the interpolation; the first and last are branch-free and compile to SIMD code, and
+    every point's value is computed by the same float32 operations as one point at a time. idx (4, ≥ m) int64 and
+    a (6, ≥ m) float32 are scratch. (A pixel inside the image is its own clip, so clipping all four is the
+    same as clipping at the border only.)"""
+    Wm = W - 1
+    Hm = H - 1
+    for j in range(m):
+        x = xs[j]
+        y = ys[j]
+        fx = np.floor(x)
+        fy = np.floor(y)
+        a[0, j] = np.float32(x - fx)
+        a[1, j] = np.float32(y - fy)
+        sx = np.int64(fx)
+        sy = np.int64(fy)
+        x0 = min(max(sx, 0), Wm)
+        x1 = min(max(sx + 1, 0), Wm)
+        y0 = min(max(sy, 0), Hm)
+        y1 = min(max(sy + 1, 0), Hm)
+        idx[0, j] = y0 * W + x0
+        idx[1, j] = y0 * W + x1
+        idx[2, j] = y1 * W + x0
+        idx[3, j] = y1 * W + x1
+    for j in range(m):
+        a[2, j] = np.float32(fl[idx[0, j]])
+        a[3, j] = np.float32(fl[idx[1, j]])
+        a[4, j] = np.float32(fl[idx[2, j]])
+        a[5, j] = np.float32(fl[idx[3, j]])
+    for j in range(m):
+        ax = a[0, j]
+        ay = a[1, j]
+        p00 = a[2, j]
+        p01 = a[3, j]
+        p10 = a[4, j]
+        p11 = a[5, j]
+        f0 = _fma_f32(ax, np.float32(p01 - p00), p00)
+        f1 = _fma_f32(ax, np.float32(p11 - p10), p10)
+        v = _fma_f32(ay, np.float32(f1 - f0), f0)
+        out[j] = min(max(_rint_f32(v), np.float32(0.0)), np.float32(255.0))
+
+
 @njit
 def ridge_brightness_u8(img, q):
     """labelling._ridge_brightness for a uint8 image: the image at q (N, 2) (NaN read as 0), as float32.
@@ -1094,40 +1143,26 @@ def ridge_brightness_u8(img, q):
     coordinates (x, y) (OpenCV 5's SIMD path, warp_common.vector.hpp): α = x − ⌊x⌋, β = y − ⌊y⌋ in float32,
     f0 = fma(α, p01 − p00, p00), f1 = fma(α, p11 − p10, p10), v = fma(β, f1 − f0, f0), rounded half to even
     and saturated; each of the four pixels clipped into the image. (On a CPU without FMA OpenCV's v_fma is
-    a multiply and an add, and a value at exactly .5 could round the other way.)"""
+    a multiply and an add, and a value at exactly .5 could round the other way.) Read in blocks
+    (`_bilinear_u8_block`, decision 0156)."""
     n = q.shape[0]
     H = img.shape[0]
     W = img.shape[1]
+    fl = img.ravel()
     out = np.empty(n, np.float32)
-    for k in range(n):
-        qx = q[k, 0]
-        qy = q[k, 1]
-        x = np.float32(qx) if math.isfinite(qx) else np.float32(0.0)
-        y = np.float32(qy) if math.isfinite(qy) else np.float32(0.0)
-        fx = np.floor(x)
-        fy = np.floor(y)
-        ax = np.float32(x - fx)
-        ay = np.float32(y - fy)
-        sx = np.int64(fx)
-        sy = np.int64(fy)
-        if sx >= 0 and sx < W - 1 and sy >= 0 and sy < H - 1:  # inside: no clipping
-            p00 = np.float32(img[sy, sx])
-            p01 = np.float32(img[sy, sx + 1])
-            p10 = np.float32(img[sy + 1, sx])
-            p11 = np.float32(img[sy + 1, sx + 1])
-        else:
-            x0 = min(max(sx, 0), W - 1)
-            x1 = min(max(sx + 1, 0), W - 1)
-            y0 = min(max(sy, 0), H - 1)
-            y1 = min(max(sy + 1, 0), H - 1)
-            p00 = np.float32(img[y0, x0])
-            p01 = np.float32(img[y0, x1])
-            p10 = np.float32(img[y1, x0])
-            p11 = np.float32(img[y1, x1])
-        f0 = _fma_f32(ax, np.float32(p01 - p00), p00)
-        f1 = _fma_f32(ax, np.float32(p11 - p10), p10)
-        v = _fma_f32(ay, np.float32(f1 - f0), f0)
-        out[k] = min(max(_rint_f32(v), np.float32(0.0)), np.float32(255.0))
+    B = _READ_BLOCK
+    xs = np.empty(B, np.float32)
+    ys = np.empty(B, np.float32)
+    idx = np.empty((4, B), np.int64)
+    a = np.empty((6, B), np.float32)
+    for base in range(0, n, B):
+        m = min(B, n - base)
+        for j in range(m):
+            qx = q[base + j, 0]
+            qy = q[base + j, 1]
+            xs[j] = np.float32(qx) if math.isfinite(qx) else np.float32(0.0)
+            ys[j] = np.float32(qy) if math.isfinite(qy) else np.float32(0.0)
+        _bilinear_u8_block(fl, W, H, xs, ys, m, idx, a, out[base:base + m])
     return out
 
 
@@ -1136,11 +1171,16 @@ def profile_drop_u8(img, q, sid, tangent, pos, width_px, ridge, have_ridge):
     """labelling._profile_drop_box3 for a uint8 image at the trace positions pos: sample q[sid[k]], unit
     tangent tangent[k]; probes at d·n, d ∈ {0, ±w/4, ±w/2, ±w} (float32, as the NumPy code), read as
     cv2.remap does (see `ridge_brightness_u8`). With have_ridge the probe at the sample is ridge[sid[k]]
-    (`ridge_brightness_u8` of the same image reads the same coordinates); the outer probes are skipped
-    where the sample is the brightest inner point (the drop is 0 then). Returns (len(pos),) float32."""
+    (`ridge_brightness_u8` of the same image reads the same coordinates); the outer probes are read only
+    where the sample is not the brightest inner point (the drop is 0 there whatever the outer points:
+    99 % of the positions on the bench's pitch-16 frame). Returns (len(pos),) float32.
+
+    The inner probes of 64 positions at a time are read in one block (`_bilinear_u8_block`, decision 0156),
+    the outer ones position by position; each probe's value is the one read alone."""
     n = pos.shape[0]
     H = img.shape[0]
     W = img.shape[1]
+    fl = img.ravel()
     out = np.empty(n, np.float32)
     w = np.float32(width_px)
     d = np.empty(7, np.float32)
@@ -1151,53 +1191,51 @@ def profile_drop_u8(img, q, sid, tangent, pos, width_px, ridge, have_ridge):
     d[4] = np.float32(0.5) * w
     d[5] = np.float32(-1.0) * w
     d[6] = np.float32(1.0) * w
-    v = np.empty(7, np.float32)
+    B = _READ_BLOCK
+    p0 = 1 if have_ridge else 0  # the first probe read from the image
+    NP = 5 - p0
+    xs = np.empty(NP * B, np.float32)
+    ys = np.empty(NP * B, np.float32)
+    vals = np.empty(5 * B, np.float32)  # the inner probes p of position j at vals[p·m + j]
+    idx = np.empty((4, NP * B), np.int64)
+    a = np.empty((6, NP * B), np.float32)
+    ox = np.empty(2, np.float32)
+    oy = np.empty(2, np.float32)
+    ov = np.empty(2, np.float32)
     one = np.float32(1.0)
-    for m in range(n):
-        k = pos[m]
-        s = sid[k]
-        qx = np.float32(q[s, 0])
-        qy = np.float32(q[s, 1])
-        nx = np.float32(-tangent[k, 1])
-        ny = np.float32(tangent[k, 0])
-        for p in range(7):
-            if p == 0 and have_ridge:
-                v[0] = ridge[s]
+    for base in range(0, n, B):
+        m = min(B, n - base)
+        for j in range(m):
+            k = pos[base + j]
+            s = sid[k]
+            qx = np.float32(q[s, 0])
+            qy = np.float32(q[s, 1])
+            nx = np.float32(-tangent[k, 1])
+            ny = np.float32(tangent[k, 0])
+            for p in range(p0, 5):
+                xs[(p - p0) * m + j] = np.float32(qx + np.float32(d[p] * nx))
+                ys[(p - p0) * m + j] = np.float32(qy + np.float32(d[p] * ny))
+            if have_ridge:
+                vals[j] = ridge[s]
+        _bilinear_u8_block(fl, W, H, xs, ys, NP * m, idx, a, vals[p0 * m:])
+        for j in range(m):
+            v0 = vals[j]
+            inner = max(max(max(v0, vals[m + j]), max(vals[2 * m + j], vals[3 * m + j])), vals[4 * m + j])
+            if inner == v0:
+                out[base + j] = np.float32(0.0)  # the sample is the brightest inner point
                 continue
-            if p == 5 and max(max(v[1], v[2]), max(v[3], v[4])) <= v[0]:
-                break  # the sample is the brightest inner point: drop 0 whatever the outer points
-            x = np.float32(qx + np.float32(d[p] * nx))
-            y = np.float32(qy + np.float32(d[p] * ny))
-            fx = np.floor(x)
-            fy = np.floor(y)
-            ax = np.float32(x - fx)
-            ay = np.float32(y - fy)
-            sx = np.int64(fx)
-            sy = np.int64(fy)
-            if sx >= 0 and sx < W - 1 and sy >= 0 and sy < H - 1:  # inside: no clipping
-                p00 = np.float32(img[sy, sx])
-                p01 = np.float32(img[sy, sx + 1])
-                p10 = np.float32(img[sy + 1, sx])
-                p11 = np.float32(img[sy + 1, sx + 1])
-            else:
-                x0 = min(max(sx, 0), W - 1)
-                x1 = min(max(sx + 1, 0), W - 1)
-                y0 = min(max(sy, 0), H - 1)
-                y1 = min(max(sy + 1, 0), H - 1)
-                p00 = np.float32(img[y0, x0])
-                p01 = np.float32(img[y0, x1])
-                p10 = np.float32(img[y1, x0])
-                p11 = np.float32(img[y1, x1])
-            f0 = _fma_f32(ax, np.float32(p01 - p00), p00)
-            f1 = _fma_f32(ax, np.float32(p11 - p10), p10)
-            vv = _fma_f32(ay, np.float32(f1 - f0), f0)
-            v[p] = min(max(_rint_f32(vv), np.float32(0.0)), np.float32(255.0))
-        inner = max(max(max(v[0], v[1]), max(v[2], v[3])), v[4])
-        if inner == v[0]:
-            out[m] = np.float32(0.0)
-            continue
-        outer = min(v[5], v[6])
-        out[m] = (inner - v[0]) / max(inner - outer, one)
+            k = pos[base + j]
+            s = sid[k]
+            qx = np.float32(q[s, 0])
+            qy = np.float32(q[s, 1])
+            nx = np.float32(-tangent[k, 1])
+            ny = np.float32(tangent[k, 0])
+            for p in range(2):
+                ox[p] = np.float32(qx + np.float32(d[5 + p] * nx))
+                oy[p] = np.float32(qy + np.float32(d[5 + p] * ny))
+            _bilinear_u8_block(fl, W, H, ox, oy, 2, idx, a, ov)
+            outer = min(ov[0], ov[1])
+            out[base + j] = (inner - v0) / max(inner - outer, one)
     return out
 
 
@@ -1329,6 +1367,91 @@ def sample_grid_cells(q, valid, fam, cell):
                 items[fill2[b]] = s
                 fill2[b] += 1
     return x0, y0, gw, gh, start, items
+
+
+@njit
+def sample_grid_cells_two(q, valid, fam, cell, cell_f):
+    """`sample_grid_cells(q, valid, fam, cell)` and `crossing_fill._family_grid(q, fam, cell_f)` of the same samples in
+    one kernel (decision 0156): valid must be the samples of family 1 or 2 with a finite position (`sample_cells`'
+    valid), the set `_family_grid` keeps, so both grids have the same origin (the valid samples' smallest x and
+    y). One pass for the extent, one for both grids' cells and counts, one for both item lists; each grid's
+    cells, clamping and items are computed by the same operations as in its own kernel. Returns
+    ((x0, y0, gw, gh, start, items), (x0, y0, gw_f, gh_f, start_f, mid_f, items_f))."""
+    P = q.shape[0]
+    x0 = np.inf
+    y0 = np.inf
+    x1 = -np.inf
+    y1 = -np.inf
+    nv = 0
+    for s in range(P):
+        if valid[s]:
+            x0 = min(x0, q[s, 0])
+            y0 = min(y0, q[s, 1])
+            x1 = max(x1, q[s, 0])
+            y1 = max(y1, q[s, 1])
+            nv += 1
+    if nv == 0:
+        x0 = 0.0
+        y0 = 0.0
+        x1 = 0.0
+        y1 = 0.0
+    gw = int((x1 - x0) / cell) + 1
+    gh = int((y1 - y0) / cell) + 1
+    gwf = int((x1 - x0) / cell_f) + 1
+    ghf = int((y1 - y0) / cell_f) + 1
+    nc = gw * gh
+    ncf = gwf * ghf
+    key = np.empty(P, np.intp)
+    keyf = np.empty(P, np.intp)
+    start = np.zeros(2 * nc + 1, np.intp)
+    startf = np.zeros(ncf + 1, np.intp)
+    n1 = np.zeros(nc, np.intp)
+    n1f = np.zeros(ncf, np.intp)
+    for s in range(P):
+        if valid[s]:
+            b = min(max(int(math.floor((q[s, 1] - y0) / cell)), 0), gh - 1) * gw + min(max(int(math.floor((q[s, 0] - x0) / cell)), 0), gw - 1)
+            bf = (min(max(int(math.floor((q[s, 1] - y0) / cell_f)), 0), ghf - 1) * gwf
+                  + min(max(int(math.floor((q[s, 0] - x0) / cell_f)), 0), gwf - 1))
+            key[s] = b
+            keyf[s] = bf
+            start[b + 1] += 1
+            startf[bf + 1] += 1
+            if fam[s] == 1:
+                n1[b] += 1
+                n1f[bf] += 1
+    for k in range(nc):
+        start[k + 1] += start[k]
+    for k in range(ncf):
+        startf[k + 1] += startf[k]
+    fill1 = np.empty(nc, np.intp)
+    fill2 = np.empty(nc, np.intp)
+    for k in range(nc):
+        fill1[k] = start[k]
+        fill2[k] = start[k] + n1[k]
+        start[nc + 1 + k] = fill2[k]
+    fill1f = np.empty(ncf, np.intp)
+    midf = np.empty(ncf, np.intp)
+    for k in range(ncf):
+        fill1f[k] = startf[k]
+        midf[k] = startf[k] + n1f[k]
+    fill2f = midf.copy()
+    items = np.empty(nv, np.intp)
+    itemsf = np.empty(nv, np.intp)
+    for s in range(P):
+        if valid[s]:
+            b = key[s]
+            bf = keyf[s]
+            if fam[s] == 1:
+                items[fill1[b]] = s
+                fill1[b] += 1
+                itemsf[fill1f[bf]] = s
+                fill1f[bf] += 1
+            else:
+                items[fill2[b]] = s
+                fill2[b] += 1
+                itemsf[fill2f[bf]] = s
+                fill2f[bf] += 1
+    return (x0, y0, gw, gh, start, items), (x0, y0, gwf, ghf, startf, midf, itemsf)
 
 
 @njit

@@ -1361,12 +1361,15 @@ def _prep_key(n_samples: int, sigma_px: float, options: TraceOptions, image: np.
 
 def prepare_samples(obs: GridObservation, *, sigma_px: float, options: TraceOptions = TraceOptions(),
                     image: np.ndarray | None = None, grid_cell_px: float | None = None, traces: bool = False,
-                    line_width_px: float | None = None) -> SamplePrep:
+                    line_width_px: float | None = None, family_cell_px: float | None = None) -> SamplePrep:
     """`label_samples`' measurements that need no label (SamplePrep): the samples' cells, the mixing zone, the
     box-filtered image and the ridge brightness at the samples. Same arguments as label_samples; grid_cell_px
     (`trace_grid_cell_px(model, options)`): the valid samples' bucket grid on that cell too (SamplePrep.grids,
     decision 0115; None: built by label_samples). traces: the trace pieces too (SamplePrep.traces, decision 0140),
-    with line_width_px (label_samples' own) the cut-profile measure at every trace position."""
+    with line_width_px (label_samples' own) the cut-profile measure at every trace position. family_cell_px
+    (`crossing_fill.fill_grid_cell_px`): every sample's grid by family on that cell too (SamplePrep.grids[("family",
+    cell)], `crossing_fill.family_grid`), built with the valid samples' grid in one kernel when both are asked for
+    (`_label_kernels.sample_grid_cells_two`, decision 0156)."""
     q = np.ascontiguousarray(np.asarray(obs.q, np.float64).reshape(-1, 2))
     fam = np.ascontiguousarray(np.asarray(obs.family).reshape(-1), np.intp)
     key = _prep_key(len(q), sigma_px, options, image)
@@ -1376,7 +1379,10 @@ def prepare_samples(obs: GridObservation, *, sigma_px: float, options: TraceOpti
     cell = max(1, int(obs.stats.get("scale", 1)))
     valid, r, c, H, W, n_valid = _k.sample_cells(q, fam, float(cell), 2)
     if n_valid == 0:
-        return SamplePrep(cell, valid, r, c, int(H), int(W), 0, None, None, None, key)
+        prep = SamplePrep(cell, valid, r, c, int(H), int(W), 0, None, None, None, key)
+        if family_cell_px is not None:
+            prep.grids[("family", float(family_cell_px))] = _family_grid_of(q, fam, float(family_cell_px))
+        return prep
     rad = max(1, int(round(options.mix_sigma * sigma_px / cell)))
     near_other = _k.mixing_zone(r, c, fam, valid, int(H), int(W), *_disk_offsets(rad))
     blurred = _box3(image) if image is not None else None
@@ -1385,9 +1391,23 @@ def prepare_samples(obs: GridObservation, *, sigma_px: float, options: TraceOpti
     if traces:
         tp = _prepare_traces(obs, q, fam, cell, valid, near_other, r, c, H, W, blurred, ridge, options, line_width_px)
     prep = SamplePrep(cell, valid, r, c, int(H), int(W), int(n_valid), near_other, blurred, ridge, key, traces=tp)
-    if grid_cell_px is not None:
+    if grid_cell_px is not None and family_cell_px is not None:
+        # both grids in one kernel: valid is the set `_family_grid` keeps (family 1 or 2, finite position)
+        g, gf = _k.sample_grid_cells_two(q, valid, fam, float(grid_cell_px), float(family_cell_px))
+        prep.grids[("valid", float(grid_cell_px))] = g
+        prep.grids[("family", float(family_cell_px))] = gf
+    elif grid_cell_px is not None:
         prep.grids[("valid", float(grid_cell_px))] = _k.sample_grid_cells(q, valid, fam, float(grid_cell_px))
+    elif family_cell_px is not None:
+        prep.grids[("family", float(family_cell_px))] = _family_grid_of(q, fam, float(family_cell_px))
     return prep
+
+
+def _family_grid_of(q: np.ndarray, fam: np.ndarray, cell_px: float) -> tuple:
+    """`crossing_fill.family_grid` (imported here: crossing_fill is not imported by this module otherwise)."""
+    from reconstruction.crossing_fill import family_grid
+
+    return family_grid(q, fam, cell_px)
 
 
 def trace_grid_cell_px(model: RigModel, options: TraceOptions) -> float | None:

@@ -27,7 +27,7 @@ import numpy as np
 from calibration.errors import ReconstructionError
 from calibration.models import ProCam
 from reconstruction.border_fill import BorderFillOptions, with_border
-from reconstruction.crossing_fill import CrossingFillOptions, CrossingPoints, family_grid, fill_crossings, fill_grid_cell_px
+from reconstruction.crossing_fill import CrossingFillOptions, CrossingPoints, fill_crossings, fill_grid_cell_px
 from reconstruction.crossing_fill_one_sided import OneSidedFillOptions, with_one_sided
 from reconstruction.extraction import ExtractOptions, GridObservation, extract_grid, sigma_for
 from reconstruction.crossing_pull import triangulated_positions
@@ -187,12 +187,13 @@ def extract_frame(
         # too (decision 0115)
         sigma = _sigma(obs, model, options)
         # the trace pieces and the cut-profile measure along them need no label either (decision 0140)
+        # and every sample's grid by family for the crossing fills (decision 0115; built with the other grid, 0156)
+        gcell = None
+        if options.labeller == "epipolar" and options.crossing.enabled:
+            gcell = float(fill_grid_cell_px(sigma, float(_step_px(obs)), options.crossing))
         prep = prepare_samples(obs, sigma_px=sigma, options=options.trace, image=image,
                                grid_cell_px=trace_grid_cell_px(model, options.trace), traces=options.traces_in_extraction,
-                               line_width_px=model.line_width_cam_px)
-        if options.labeller == "epipolar" and options.crossing.enabled:
-            gcell = fill_grid_cell_px(sigma, float(_step_px(obs)), options.crossing)
-            prep.grids[("family", float(gcell))] = family_grid(obs.q, obs.family, gcell)
+                               line_width_px=model.line_width_cam_px, family_cell_px=gcell)
     xy_cam_j = model.cam_normalised(obs.q_junction)
     t_extract = time.perf_counter()
     return ExtractedFrame(image, obs, model, options, {"model": 1e3 * (t_model - t0), "extract": 1e3 * (t_extract - t_model)}, prep,
