@@ -572,17 +572,20 @@ def knn_within(pts, queries, k, radius):
         cy = int(math.floor((qy - y0) / cell))
         # the points in the disc, gathered branch-free (a store per point, the count advanced by the test)
         nc = 0
+        # a row's 3 cells are consecutive buckets: their items one run, read in the same order (decision 0157)
+        xa = max(cx - 1, 0)
+        xb = min(cx + 2, gw)
         for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
-            for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
-                b = yy * gw + xx
-                for s in range(start[b], start[b + 1]):
-                    j = items[s]
-                    d0 = pts[j, 0] - qx
-                    d1 = pts[j, 1] - qy
-                    d2 = d0 * d0 + d1 * d1
-                    cd[nc] = d2
-                    ci[nc] = j
-                    nc += not (d2 >= r2)  # (the former `if d2 >= r2: continue`, NaN included)
+            if xa >= xb:
+                break
+            for s in range(start[yy * gw + xa], start[yy * gw + xb]):
+                j = items[s]
+                d0 = pts[j, 0] - qx
+                d1 = pts[j, 1] - qy
+                d2 = d0 * d0 + d1 * d1
+                cd[nc] = d2
+                ci[nc] = j
+                nc += not (d2 >= r2)  # (the former `if d2 >= r2: continue`, NaN included)
         nfound = 0
         for h in range(nc):
             d2 = cd[h]
