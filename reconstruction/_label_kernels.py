@@ -572,17 +572,20 @@ def knn_within(pts, queries, k, radius):
         cy = int(math.floor((qy - y0) / cell))
         # the points in the disc, gathered branch-free (a store per point, the count advanced by the test)
         nc = 0
+        # a row's 3 cells are consecutive buckets: their items one run, read in the same order (decision 0157)
+        xa = max(cx - 1, 0)
+        xb = min(cx + 2, gw)
         for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
-            for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
-                b = yy * gw + xx
-                for s in range(start[b], start[b + 1]):
-                    j = items[s]
-                    d0 = pts[j, 0] - qx
-                    d1 = pts[j, 1] - qy
-                    d2 = d0 * d0 + d1 * d1
-                    cd[nc] = d2
-                    ci[nc] = j
-                    nc += not (d2 >= r2)  # (the former `if d2 >= r2: continue`, NaN included)
+            if xa >= xb:
+                break
+            for s in range(start[yy * gw + xa], start[yy * gw + xb]):
+                j = items[s]
+                d0 = pts[j, 0] - qx
+                d1 = pts[j, 1] - qy
+                d2 = d0 * d0 + d1 * d1
+                cd[nc] = d2
+                ci[nc] = j
+                nc += not (d2 >= r2)  # (the former `if d2 >= r2: continue`, NaN included)
         nfound = 0
         for h in range(nc):
             d2 = cd[h]
@@ -2370,6 +2373,81 @@ def gap_candidates(valid, index, sid, piece, cut_samples):
             out[m] = s
             m += 1
     return out[:m]
+
+
+@njit
+def cut_and_gap_candidates(index, sid, piece, valid, drop, max_drop, cut, gaps):
+    """The end of labelling.label_samples' step 5 and step 6's candidates in one pass over the trace positions
+    (decision 0157): `labelled_positions` (the positions whose sample carries an index and the number without one,
+    both taken before the cut), with `cut` the profile test on them (drop (n,) float32, every trace position's
+    measure, `TracePrep.drop`; max_drop float32: NumPy compares the float32 array with the option in float32) that
+    clears the index of the cut samples, and with `gaps` `gap_candidates` of the result. Returns the labelled
+    positions left after the cut (g[~cut]), the number unlabelled before it, the cut samples (sid[g[cut]], in
+    position order) and the gap candidates (increasing sample order; empty without `gaps`). The trace positions
+    are distinct samples, so a cut at one position changes no other position's test."""
+    n = sid.shape[0]
+    P = index.shape[0]
+    lab_pos = np.empty(n, np.intp)
+    cut_s = np.empty(n if cut else 0, np.intp)
+    state = np.zeros(P if gaps else 0, np.int8)  # as gap_candidates: 1 on a trace, 2 cut by the profile test
+    npc = piece[n - 1] + 1 if (n and gaps) else 0
+    lab_piece = np.zeros(npc, np.bool_)
+    piece_of = np.empty(P if gaps else 0, np.int32)
+    nlab = 0
+    ncut = 0
+    nun = 0
+    for k in range(n):
+        s = sid[k]
+        fin = math.isfinite(index[s])
+        if fin:
+            if cut and drop[k] > max_drop:
+                index[s] = np.nan
+                cut_s[ncut] = s
+                ncut += 1
+                fin = False
+                if gaps:
+                    state[s] = 2
+            else:
+                lab_pos[nlab] = k
+                nlab += 1
+        else:
+            nun += 1
+        if gaps:
+            if state[s] == 0:
+                state[s] = 1
+            piece_of[s] = piece[k]
+            if fin:
+                lab_piece[piece[k]] = True
+    out = np.empty(P if gaps else 0, np.intp)
+    m = 0
+    if gaps:
+        for s in range(P):
+            if not valid[s] or math.isfinite(index[s]) or state[s] == 2:
+                continue
+            if state[s] == 0 or lab_piece[piece_of[s]]:
+                out[m] = s
+                m += 1
+    return lab_pos[:nlab], nun, cut_s[:ncut], out[:m]
+
+
+@njit
+def labels_out(index, seed_jid):
+    """`drop_unlabelled_junctions` and the result's types in one pass (decision 0157): index as float64, the
+    junctions as int64 with −1 where no index, and the number labelled. The narrow arrays (decision 0150) are
+    left as they were."""
+    P = index.shape[0]
+    idx = np.empty(P, np.float64)
+    jid = np.empty(P, np.int64)
+    m = 0
+    for s in range(P):
+        v = index[s]
+        idx[s] = v
+        if math.isfinite(v):
+            m += 1
+            jid[s] = seed_jid[s]
+        else:
+            jid[s] = -1
+    return idx, jid, m
 
 
 @njit

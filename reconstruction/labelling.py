@@ -1644,32 +1644,47 @@ def label_samples(
                                                                                           min_angle_deg=options.continue_gap_deg or 45.0),
                                                           lateral_px=options.seed_lateral_px * cell, ridge=ridge)
         lab_pos = None  # the labelled trace positions when known (decision 0115)
-        if (options.cross_pieces or options.continue_lines) and model is not None:
-            g, n_unseeded = _k.labelled_positions(index, sid)  # (decision 0087)
-            lab_pos = g
+        do_cut = bool(image is not None and line_width_px and options.max_profile_drop > 0)
+        cand = None
+        if ((options.cross_pieces or options.continue_lines) and model is not None and tp is not None and tp.drop is not None
+                and tp.drop_width_px == float(line_width_px or 0.0) and tp.drop.dtype == np.float32 and len(tp.drop) == len(sid)):
+            # the labelled positions, the cut profile (every trace position's measure from the extraction stage, decision
+            # 0140) and the gap candidates in one compiled pass (decision 0157)
+            lab_pos, n_unseeded, cut_samples, cand = _k.cut_and_gap_candidates(
+                index, sid, piece, valid, tp.drop, np.float32(options.max_profile_drop), do_cut, bool(options.fill_gaps))
+            stats["samples_unseeded"] = int(n_unseeded)
+            if do_cut:
+                stats["cut_profile"] = int(len(cut_samples))
         else:
-            g = np.flatnonzero(got)
-            n_unseeded = len(got) - len(g)
-        stats["samples_unseeded"] = int(n_unseeded)
-        cut_samples = np.zeros(0, np.intp)
-        if image is not None and line_width_px and options.max_profile_drop > 0:
-            if tp is not None and tp.drop is not None and tp.drop_width_px == float(line_width_px):
-                drop = tp.drop[g]  # every trace position's, measured in the extraction stage (decision 0140)
+            if (options.cross_pieces or options.continue_lines) and model is not None:
+                g, n_unseeded = _k.labelled_positions(index, sid)  # (decision 0087)
+                lab_pos = g
             else:
-                drop = _profile_drop_traces(blurred, q, sid, tangent, g, float(line_width_px), ridge)
-            cut = drop > options.max_profile_drop
-            cut_samples = sid[g[cut]]
-            index[cut_samples] = np.nan
-            stats["cut_profile"] = int(len(cut_samples))
-            if lab_pos is not None:
-                lab_pos = g[~cut]
+                g = np.flatnonzero(got)
+                n_unseeded = len(got) - len(g)
+            stats["samples_unseeded"] = int(n_unseeded)
+            cut_samples = np.zeros(0, np.intp)
+            if do_cut:
+                if tp is not None and tp.drop is not None and tp.drop_width_px == float(line_width_px):
+                    drop = tp.drop[g]  # every trace position's, measured in the extraction stage (decision 0140)
+                else:
+                    drop = _profile_drop_traces(blurred, q, sid, tangent, g, float(line_width_px), ridge)
+                cut = drop > options.max_profile_drop
+                cut_samples = sid[g[cut]]
+                index[cut_samples] = np.nan
+                stats["cut_profile"] = int(len(cut_samples))
+                if lab_pos is not None:
+                    lab_pos = g[~cut]
         if options.fill_gaps:
             # gap samples: the mixing zone, and the unlabelled ends of labelled pieces
-            cand = _k.gap_candidates(valid, index, sid, piece, cut_samples)
+            if cand is None:
+                cand = _k.gap_candidates(valid, index, sid, piece, cut_samples)
             reach = (options.mix_sigma + options.cross_trim_sigma) * sigma_px + 2.0
             stats["samples_gap_filled"] = _fill_gaps(q, fam, sid, piece, tangent, index, seed_jid, q_out, cand, reach, options, lab_pos)
         _guard()
         if guard is not None:
             stats["samples_ambiguity_guard"] = guard.n
-    stats["samples_labelled"] = int(_k.drop_unlabelled_junctions(index, seed_jid))
-    return SampleLabels(index.astype(np.float64), q_out, seed_jid.astype(np.int64), stats)
+    # junction −1 where no index, the result's float64 index and int64 junctions: one pass (decision 0157)
+    index_out, jid_out, n_lab = _k.labels_out(index, seed_jid)
+    stats["samples_labelled"] = int(n_lab)
+    return SampleLabels(index_out, q_out, jid_out, stats)

@@ -255,10 +255,11 @@ def _k_end_pairs_f(E, U, pos, first, last, piece, ts, q, sid, trim_px, anchor, f
         cy = int((E[r, 1] - y0) / cs)
         bd = np.inf
         g0 = (2 - fe[r]) * G  # the other family's grid
+        xa = max(cx - 1, 0)
+        xb = min(cx + 2, gw)
         for yy in range(max(cy - 1, 0), min(cy + 2, gh)):
-            for xx in range(max(cx - 1, 0), min(cx + 2, gw)):
-                b = g0 + yy * gw + xx
-                for t in range(start[b], start[b + 1]):
+            # a row's cells are consecutive buckets: one run, the same ends in the same order (decision 0157)
+            for t in range(start[g0 + yy * gw + xa], start[g0 + yy * gw + xb] if xb > xa else start[g0 + yy * gw + xa]):
                     ddx = Ec[t, 0] - E[r, 0]
                     ddy = Ec[t, 1] - E[r, 1]
                     if ddx * ddx + ddy * ddy >= r2:
