@@ -520,7 +520,6 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
                                                   int(model.index_max), float(model.fx_proj), int(options.skip_max_steps), float(skip_tol))
         if len(sel) == 0:
             return None
-        sub_e = np.column_stack([pa, pb])
         changed = k != 1
         # edges no step along their line explains: cut (decision 0130)
         cut = np.zeros(len(sel), np.bool_)
@@ -533,9 +532,11 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
                          np.ascontiguousarray(rel[members] + off), np.ascontiguousarray(lines[members]), model.xy_junction,
                          int(model.index_min), int(model.index_max), float(model.fx_proj), int(options.skip_max_steps))
             cut = edge_misfits(*step_args, float(cut_tol), np.ascontiguousarray(members, np.intp), start, nbr, pos) & ~changed
-        if not changed.any() and not cut.any():
+        any_changed = bool(changed.any())
+        if not any_changed and not cut.any():
             return None
-        if changed.any():
+        sub_e = np.column_stack([pa, pb])  # (made only past the return above: decision 0158)
+        if any_changed:
             if delta_all is obs_delta:
                 delta_all = delta_all.copy()
             delta_all[sel[changed]] *= k[changed, None]
