@@ -1063,6 +1063,50 @@ def clean_edges(n, a, b, d0, d1, rounds):
     return keep, removed
 
 
+@njit
+def clean_edges_walk(n, a, b, d0, d1, rounds):
+    """`clean_edges` and `propagate(n, a, b, d0, d1, keep)` on its result in one call (decision 0158): keep, removed,
+    rel, comp. When the last round found no contradicting edge (or no edge was kept), the walk that round made on
+    the final keep is returned as it is, instead of walking the same edges again: `propagate` is a function of
+    (n, a, b, d0, d1, keep) alone, so it is the same rel and comp bit for bit. Otherwise (edges dropped in the last
+    round) the walk is made on the final keep."""
+    E = a.shape[0]
+    keep = np.ones(E, np.bool_)
+    removed = 0
+    mark = np.zeros(n, np.bool_)
+    have = False  # rel, comp are the walk on the current keep
+    rel = np.zeros((0, 2), np.int64)
+    comp = np.zeros(0, np.int64)
+    for _ in range(rounds):
+        nk = 0
+        for e in range(E):
+            if keep[e]:
+                nk += 1
+        if nk == 0:
+            break
+        rel, comp = propagate(n, a, b, d0, d1, keep)
+        have = True
+        nbad = 0
+        for e in range(E):
+            if keep[e] and (rel[b[e], 0] - rel[a[e], 0] != d0[e] or rel[b[e], 1] - rel[a[e], 1] != d1[e]):
+                mark[a[e]] = True
+                mark[b[e]] = True
+                nbad += 1
+        if nbad == 0:
+            break
+        for e in range(E):
+            if keep[e] and (mark[a[e]] or mark[b[e]]):
+                keep[e] = False
+                removed += 1
+                have = False
+        for e in range(E):
+            mark[a[e]] = False
+            mark[b[e]] = False
+    if not have:
+        rel, comp = propagate(n, a, b, d0, d1, keep)
+    return keep, removed, rel, comp
+
+
 # --- image reads: cv2.remap(uint8, INTER_LINEAR, BORDER_REPLICATE) at single points -------------------------
 
 

@@ -454,9 +454,8 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
     edges_all = np.asarray(obs.edges, np.int64).reshape(-1, 2)
     delta_all = obs_delta = np.asarray(obs.edge_delta, np.int64).reshape(-1, 2)
     e_arrays = _edge_arrays(edges_all, delta_all)
-    keep, removed = _k.clean_edges(int(M), *e_arrays, 2)
+    keep, removed, rel, comp = _k.clean_edges_walk(int(M), *e_arrays, 2)  # the walk on the kept edges (decision 0158)
     stats["contradicting_edges"] = int(removed)
-    rel, comp = _k.propagate(int(M), *e_arrays, keep)
     edges = delta = None  # the kept edges, made when a component is split
     # `epipolar_lines`, its cross product and scaling compiled (decision 0094)
     lines = _k.epipolar_from_rays(camera_rays_proj(model.procam, xy_cam), model.t_proj_cam_c)
@@ -521,7 +520,6 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
                                                   int(model.index_max), float(model.fx_proj), int(options.skip_max_steps), float(skip_tol))
         if len(sel) == 0:
             return None
-        sub_e = np.column_stack([pa, pb])
         changed = k != 1
         # edges no step along their line explains: cut (decision 0130)
         cut = np.zeros(len(sel), np.bool_)
@@ -534,9 +532,11 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
                          np.ascontiguousarray(rel[members] + off), np.ascontiguousarray(lines[members]), model.xy_junction,
                          int(model.index_min), int(model.index_max), float(model.fx_proj), int(options.skip_max_steps))
             cut = edge_misfits(*step_args, float(cut_tol), np.ascontiguousarray(members, np.intp), start, nbr, pos) & ~changed
-        if not changed.any() and not cut.any():
+        any_changed = bool(changed.any())
+        if not any_changed and not cut.any():
             return None
-        if changed.any():
+        sub_e = np.column_stack([pa, pb])  # (made only past the return above: decision 0158)
+        if any_changed:
             if delta_all is obs_delta:
                 delta_all = delta_all.copy()
             delta_all[sel[changed]] *= k[changed, None]
@@ -547,9 +547,8 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
             keep[sel[cut]] = False
             sel, sub_e = sel[~cut], sub_e[~cut]
         sub_arrays = _edge_arrays(sub_e, delta_all[sel])
-        keep_s, _ = _k.clean_edges(len(members), *sub_arrays, 2)
+        keep_s, _, sub_rel, sub_comp = _k.clean_edges_walk(len(members), *sub_arrays, 2)
         keep[sel[~keep_s]] = False
-        sub_rel, sub_comp = _k.propagate(len(members), *sub_arrays, keep_s)
         rel[members] = sub_rel
         return [members[p] for p in _groups(sub_comp)], bool(cut.any())
 
