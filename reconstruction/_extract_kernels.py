@@ -1657,6 +1657,9 @@ def compressed_spacing(n_ring, cx, cy, r0, r_att):
     ys = cy[order]
     lo_d = 2.0 * r0
     hi_d = min(2.0 * r_att, 2.0 * r0 + 4.0)
+    nbx = np.empty(ns)  # the neighbours of one candidate at a time (allocated once; decision 0155)
+    nby = np.empty(ns)
+    nbd = np.empty(ns)
     for k in range(ns):
         if n_ring[k, 0] >= 2 and n_ring[k, 1] >= 2:
             continue
@@ -1664,14 +1667,13 @@ def compressed_spacing(n_ring, cx, cy, r0, r_att):
         b = np.searchsorted(ys, cy[k] + hi_d, side="right")
         n = 0
         dup = False
-        nbx = np.empty(b - a)
-        nby = np.empty(b - a)
-        nbd = np.empty(b - a)
         for t in range(a, b):
             m = order[t]
             if m == k:
                 continue
             dx = cx[m] - cx[k]
+            if abs(dx) > hi_d:  # then d ≥ |dx| > hi_d > lo_d: neither a duplicate nor a neighbour (0155)
+                continue
             dy = cy[m] - cy[k]
             d = math.sqrt(dx * dx + dy * dy)
             if d <= lo_d:
