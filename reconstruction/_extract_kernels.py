@@ -491,6 +491,177 @@ def smooth_ridges_u8(img, k, G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy
     return n, m, mx
 
 
+_G_RING = 16  # rows of the working image `smooth_ridges_ring_u8` keeps (besides two copies at the ring's ends)
+
+
+@njit(error_model="numpy")
+def _ring_slot(r):
+    """The slot of working row r in `smooth_ridges_ring_u8`'s ring (1 … _G_RING; slots 0 and _G_RING + 1 hold
+    copies of the rows in slots _G_RING and 1, so that rows r − 1, r, r + 1 are always three consecutive slots)."""
+    return r % _G_RING + 1
+
+
+@njit(error_model="numpy")
+def _steger_flush_ring(nb, cand, candr, g, W, V, O, il, ix, thr, neg_aniso, neg_cross, tc, u, v, ox, oy, nx, ny, st, xu,
+                       xv, xs, m, mx):
+    """`_steger_flush` for candidates given by their place in the ring (cand: slot·W + column) and their row (candr)."""
+    for j in range(nb):
+        i = cand[j]
+        V[0, j] = g[i]
+        V[1, j] = g[i + 1]
+        V[2, j] = g[i - 1]
+        V[3, j] = g[i + W]
+        V[4, j] = g[i - W]
+        V[5, j] = g[i + W + 1]
+        V[6, j] = g[i + W - 1]
+        V[7, j] = g[i - W + 1]
+        V[8, j] = g[i - W - 1]
+    steger_block(nb, V, thr, neg_aniso, neg_cross, tc, O)
+    kl = 0
+    kx = 0
+    for j in range(nb):
+        il[kl] = j
+        kl += O[7, j] != 0
+        ix[kx] = j
+        kx += O[6, j] != 0
+    if m + kl > u.shape[0] or mx + kx > xu.shape[0]:
+        return -1, mx
+    for t in range(kx):
+        j = ix[t]
+        vv = np.int64(candr[j])
+        xu[mx] = cand[j] - _ring_slot(vv) * W
+        xv[mx] = vv
+        xs[mx] = O[5, j]
+        mx += 1
+    for t in range(kl):
+        j = il[t]
+        vv = np.int64(candr[j])
+        u[m] = cand[j] - _ring_slot(vv) * W
+        v[m] = vv
+        ox[m] = O[0, j]
+        oy[m] = O[1, j]
+        nx[m] = O[2, j]
+        ny[m] = O[3, j]
+        st[m] = O[4, j]
+        m += 1
+    return m, mx
+
+
+@njit(error_model="numpy")
+def smooth_ridges_ring_u8(img, k, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs, thr_cross=-1.0):
+    """`smooth_ridges_u8` without the full working image (decision 0155): the smoothed rows go into a ring of
+    `_G_RING` rows (plus copies of its first and last slot, so that a candidate's three rows are consecutive), which
+    the Laplacian test and the blocks read. A block is also processed (early) when the ring is about to overwrite a row
+    its pending candidates read. Every candidate is computed on its own, so the block boundaries change no value: the
+    outputs are `smooth_ridges_u8`'s (and `gauss_u8` + `ridge_pass_into`'s), in the same order; n likewise when
+    m ≥ 0. Saves writing and reading back the 4·H·W-byte image (5 MB at 1280×1024)."""
+    H, W = img.shape
+    K = len(k)
+    rk = K // 2
+    R2 = K + 1
+    RG = _G_RING
+    ext = np.empty(W + 2 * rk, np.float32)
+    T = np.empty((2 * R2, W), np.float32)
+    Gr = np.zeros((RG + 2, W), np.float32)
+    g = Gr.ravel()
+    B = _STEGER_BLOCK
+    tc = thr if thr_cross < 0 else np.float32(thr_cross)  # the crossing candidates' −λ2 threshold (0129)
+    cap = B + W + 8
+    cand = np.empty(cap, np.int32)
+    candr = np.empty(cap, np.int32)
+    flag = np.zeros((W + 7) // 8 * 8, np.uint8)
+    flag8 = flag.view(np.uint64)
+    V = np.empty((9, cap), np.float32)
+    O = np.empty((8, cap), np.float32)
+    il = np.empty(cap, np.int64)
+    ix = np.empty(cap, np.int64)
+    n = 0
+    npend = 0
+    m = 0
+    mx = 0
+    r_next = 1
+    for yy in range(-rk, H + rk):
+        sy = yy
+        if sy < 0:
+            sy = -sy - 1
+        elif sy >= H:
+            sy = 2 * H - sy - 1
+        src = img[sy]
+        for x in range(W):
+            ext[x + rk] = np.float32(src[x])
+        for x in range(rk):
+            ext[rk - 1 - x] = np.float32(src[x])
+            ext[W + rk + x] = np.float32(src[W - 1 - x])
+        slot = (yy + rk) % R2
+        row = T[slot]
+        row2 = T[slot + R2]
+        for x in range(W):
+            acc = ext[x] * k[0]
+            for j in range(1, K):
+                acc = fma32(ext[x + j], k[j], acc)
+            row[x] = acc
+            row2[x] = acc
+        y = yy - rk
+        if y < 0:
+            continue
+        pair = (y & 1) == 1
+        if not pair and y != H - 1:
+            continue
+        # writing row y overwrites row y − RG: pending candidates read rows from candr[0] − 1 on
+        if npend > 0 and y >= candr[0] - 1 + RG:
+            nb = npend
+            n += nb
+            npend = 0
+            m, mx = _steger_flush_ring(nb, cand, candr, g, W, V, O, il, ix, thr, neg_aniso, neg_cross, tc, u, v, ox, oy,
+                                       nx, ny, st, xu, xv, xs, m, mx)
+            if m < 0:
+                return n, -1, mx
+        if pair:
+            _column_pair(T, (y - 1) % R2, k, Gr[_ring_slot(y - 1)], Gr[_ring_slot(y)], W)
+            lo = y - 1
+        else:
+            _column_one(T, y % R2, k, Gr[_ring_slot(y)], W)
+            lo = y
+        for yr in range(lo, y + 1):  # the copies at the ring's ends
+            sl = _ring_slot(yr)
+            if sl == RG:
+                Gr[0, :] = Gr[RG, :]
+            elif sl == 1:
+                Gr[RG + 1, :] = Gr[1, :]
+        while r_next < y and r_next < H - 1:
+            r = r_next
+            r_next += 1
+            sr = _ring_slot(r)
+            a = Gr[sr - 1]
+            b = Gr[sr]
+            d = Gr[sr + 1]
+            for c in range(1, W - 1):
+                flag[c] = ((((a[c] + b[c - 1]) + _F32_M4 * b[c]) + b[c + 1]) + d[c]) < thr_lap
+            base = sr * W
+            for w in range(len(flag8)):
+                if flag8[w] != 0:
+                    for c in range(8 * w, 8 * w + 8):
+                        cand[npend] = base + c
+                        candr[npend] = r
+                        npend += flag[c]
+            if npend < B:
+                continue
+            nb = npend
+            n += nb
+            npend = 0
+            m, mx = _steger_flush_ring(nb, cand, candr, g, W, V, O, il, ix, thr, neg_aniso, neg_cross, tc, u, v, ox, oy,
+                                       nx, ny, st, xu, xv, xs, m, mx)
+            if m < 0:
+                return n, -1, mx
+    nb = npend
+    n += nb
+    m, mx = _steger_flush_ring(nb, cand, candr, g, W, V, O, il, ix, thr, neg_aniso, neg_cross, tc, u, v, ox, oy, nx, ny,
+                               st, xu, xv, xs, m, mx)
+    if m < 0:
+        return n, -1, mx
+    return n, m, mx
+
+
 @njit
 def albedo_and_families(u, v, ox, oy, nx, ny, st, xu, xv, xs, Hw, Ww, min_rel, cross_rel, dir4, gh_d, gw_d, cell_d, margin):
     """The uneven-albedo test (a fraction of the strongest ridge in the 3×3 cells of 16 px around: the

@@ -290,6 +290,9 @@ def _work_buffer(shape: tuple[int, int]) -> np.ndarray:
     return buf
 
 
+_RING_WALK = True  # the fused walk without the full working image (decision 0155; False: `smooth_ridges_u8`, as before)
+
+
 def _ridges(G: np.ndarray, thr_lap, thr, neg_aniso, neg_cross, thr_cross=np.float32(-1.0), *,
             image: np.ndarray | None = None, taps: tuple = ()) -> tuple:
     """`_extract_kernels.ridge_pass` with its outputs in arrays owned by the calling thread (views of them
@@ -306,7 +309,9 @@ def _ridges(G: np.ndarray, thr_lap, thr, neg_aniso, neg_cross, thr_cross=np.floa
             i64, f32 = np.int64, np.float32
             bufs = tuple(np.empty(cap, t) for t in (i64, i64, f32, f32, f32, f32, f32, i64, i64, f32))
             _workspace.ridge = bufs
-        if image is not None:
+        if image is not None and _RING_WALK:  # the working image kept as a ring of rows only (decision 0155)
+            n, m, mx = _k.smooth_ridges_ring_u8(image, taps, thr_lap, thr, neg_aniso, neg_cross, *bufs, thr_cross)
+        elif image is not None:
             n, m, mx = _k.smooth_ridges_u8(image, taps, G, thr_lap, thr, neg_aniso, neg_cross, *bufs, thr_cross)
         else:
             n, m, mx = _k.ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, *bufs, thr_cross)
