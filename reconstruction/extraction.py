@@ -28,10 +28,11 @@ top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055â
    within two smoothing scales of an end that reaches no crossing (a line cut by a silhouette or shadow)
    leave their segment: the cut bends the ridge there (decision 0059).
 
-Speed (decisions 0062, 0063, 0069, 0079, 0087, 0091): the smoothing writes a per-thread working image. For an
-8-bit image whose width is a multiple of 16 and a kernel of at most 15 taps it is a numba kernel computing
-OpenCV's `sepFilter2D` bits (its FMA order), in the same walk as the ridge pass below; otherwise it is one
-OpenCV call. Every per-pixel and per-sample step is a numba kernel (`reconstruction/_extract_kernels.py`): one walk
+Speed (decisions 0062, 0063, 0069, 0079, 0087, 0091, 0155): for an 8-bit image whose width is a multiple of 16 and
+a kernel of at most 15 taps the smoothing is a numba kernel computing OpenCV's `sepFilter2D` bits (its FMA order), in
+the same walk as the ridge pass below, its column pass two rows at a time and its rows in a ring of 16 (no full
+working image, `smooth_ridges_ring_u8`, decision 0155); otherwise it is one OpenCV call into a per-thread working
+image. Every per-pixel and per-sample step is a numba kernel (`reconstruction/_extract_kernels.py`): one walk
 over the image for the Laplacian test (a vectorised loop per row, candidates collected branch-free) that
 computes the Hessian, eigenvector and Steger offset of the candidates in blocks that LLVM vectorises as
 soon as a block's rows have been scanned (row-major, so sample order is the scan order; outputs in
