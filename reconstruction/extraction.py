@@ -400,6 +400,8 @@ def _second_derivative_noise_gain(sigma: float, scale: int) -> float:
 
 
 _PAD = 16  # margin (cells) of the lookup grids
+_GRID_NARROW = True  # int16 lookup grids where the ids fit (decision 0155; False: int32 throughout, as before)
+_INT16_IDS = 32767  # ids 0 … 32766 and −1 fit in an int16
 
 _dir_f32: tuple = (None, None)  # (model.dir_cam, its float32 (gh·gw, 4) copy): the last rig's
 
@@ -504,7 +506,10 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     inv_cs = np.float32(1 / cs)
     gsh2 = (int(Hw / cs) + 2, int(Ww / cs) + 2)
 
-    grid = np.empty((gsh2[0] + 2 * _PAD, gsh2[1] + 2 * _PAD), np.int32)  # one buffer for both lookup grids
+    # one buffer for both lookup grids; int16 while every id it can hold fits (decision 0155: half the memory the
+    # stamps fill and the lookups read; the same values)
+    narrow = _GRID_NARROW and 2 * len(xs) < _INT16_IDS
+    grid = np.empty((gsh2[0] + 2 * _PAD, gsh2[1] + 2 * _PAD), np.int16 if narrow else np.int32)
 
     def stamp(centres: np.ndarray, radius: float) -> np.ndarray:
         c = np.ascontiguousarray(centres, np.float64).reshape(-1, 2)
@@ -719,6 +724,8 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     if len(biased) and P:
         r_bias = r0 + s_w
         b32 = np.asarray(biased, np.float32).reshape(-1, 2)
+        if grid.dtype == np.int16 and len(biased) >= _INT16_IDS:
+            grid = np.empty(grid.shape, np.int32)
         stats["biased_samples"] = _k.leave_near(
             stamp(biased, r_bias), qx32, qy32, inv_cs, _PAD, b32[:, 0].copy(), b32[:, 1].copy(), np.float32(r_bias), sample_junction, seg_out
         )  # fmt: skip
