@@ -41,6 +41,36 @@ def fma32(typingctx, a, b, c):
     return sig, codegen
 
 
+@njit(inline="always")
+def hypot_le(dx, dy, r):
+    """`math.hypot(dx, dy) <= r` (float64), the same truth value, with the hypot (a libm call, ~17 ns here; decision
+    0155) evaluated only where dx² + dy² lies within a relative 1e-9 of r². Elsewhere the sum of squares decides:
+    its relative error is below 1e-15 and hypot's below 1 ulp, far inside that margin. The short cut is taken only
+    for r² in [1e-290, 1e290] (no underflow or overflow of the squares decides anything) and r ≥ 0; NaN falls
+    through to the hypot (both comparisons false)."""
+    d2 = dx * dx + dy * dy
+    r2 = r * r
+    if r >= 0.0 and r2 >= 1e-290 and r2 <= 1e290:
+        if d2 < r2 * (1.0 - 1e-9):
+            return True
+        if d2 > r2 * (1.0 + 1e-9):
+            return False
+    return math.hypot(dx, dy) <= r
+
+
+@njit(inline="always")
+def hypot_gt(dx, dy, r):
+    """`math.hypot(dx, dy) > r`, the same truth value, short-cut as `hypot_le` (NaN: false, as hypot's NaN > r)."""
+    d2 = dx * dx + dy * dy
+    r2 = r * r
+    if r >= 0.0 and r2 >= 1e-290 and r2 <= 1e290:
+        if d2 < r2 * (1.0 - 1e-9):
+            return False
+        if d2 > r2 * (1.0 + 1e-9):
+            return True
+    return math.hypot(dx, dy) > r
+
+
 GAUSS_MAX_TAPS = 15  # longer kernels: LLVM stops unrolling the tap loops and the kernel is ~10x slower
 
 
@@ -285,17 +315,100 @@ def ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny,
 
 
 @njit(error_model="numpy")
+def _column_pair(T, s0, k, o1, o2, W):
+    """The Gaussian's column pass (as `gauss_u8`'s) of two consecutive output rows at once: o1 from ring slots
+    s0 … s0 + K − 1, o2 from s0 + 1 … s0 + K. Each row's FMAs are `gauss_u8`'s, in the same order (the same bits);
+    the two rows share 12 of their 13 row loads, which halves the loads per output (decision 0155). The radius comes
+    from len(k) (a compile-time constant: the tap loop unrolls and the x loop vectorises)."""
+    r = len(k) // 2
+    for x in range(W):
+        acc = T[s0 + r, x] * k[r]
+        acc2 = T[s0 + r + 1, x] * k[r]
+        for j in range(1, r + 1):
+            acc = fma32(T[s0 + r - j, x] + T[s0 + r + j, x], k[r + j], acc)
+            acc2 = fma32(T[s0 + 1 + r - j, x] + T[s0 + 1 + r + j, x], k[r + j], acc2)
+        o1[x] = acc
+        o2[x] = acc2
+
+
+@njit(error_model="numpy")
+def _column_one(T, s0, k, o, W):
+    """`gauss_u8`'s column pass of one output row from ring slots s0 … s0 + K − 1."""
+    r = len(k) // 2
+    for x in range(W):
+        acc = T[s0 + r, x] * k[r]
+        for j in range(1, r + 1):
+            acc = fma32(T[s0 + r - j, x] + T[s0 + r + j, x], k[r + j], acc)
+        o[x] = acc
+
+
+@njit(error_model="numpy")
+def _steger_flush(nb, cand, g, W, V, O, il, ix, thr, neg_aniso, neg_cross, tc, u, v, ox, oy, nx, ny, st, xu, xv, xs, m, mx):
+    """`ridge_pass_into`'s block step: the 3×3 neighbourhoods of the `nb` pending candidates gathered, `steger_block`,
+    the kept line samples and crossing candidates appended at m / mx. Returns the new (m, mx); m = −1 when an output
+    ran out of room."""
+    for j in range(nb):
+        i = cand[j]
+        V[0, j] = g[i]
+        V[1, j] = g[i + 1]
+        V[2, j] = g[i - 1]
+        V[3, j] = g[i + W]
+        V[4, j] = g[i - W]
+        V[5, j] = g[i + W + 1]
+        V[6, j] = g[i + W - 1]
+        V[7, j] = g[i - W + 1]
+        V[8, j] = g[i - W - 1]
+    steger_block(nb, V, thr, neg_aniso, neg_cross, tc, O)
+    kl = 0
+    kx = 0
+    for j in range(nb):
+        il[kl] = j
+        kl += O[7, j] != 0
+        ix[kx] = j
+        kx += O[6, j] != 0
+    if m + kl > u.shape[0] or mx + kx > xu.shape[0]:
+        return -1, mx
+    for t in range(kx):
+        j = ix[t]
+        i = cand[j]
+        vv = i // W
+        xu[mx] = i - vv * W
+        xv[mx] = vv
+        xs[mx] = O[5, j]
+        mx += 1
+    for t in range(kl):
+        j = il[t]
+        i = cand[j]
+        vv = i // W
+        u[m] = i - vv * W
+        v[m] = vv
+        ox[m] = O[0, j]
+        oy[m] = O[1, j]
+        nx[m] = O[2, j]
+        ny[m] = O[3, j]
+        st[m] = O[4, j]
+        m += 1
+    return m, mx
+
+
+@njit(error_model="numpy")
 def smooth_ridges_u8(img, k, G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs, thr_cross=-1.0):
     """`gauss_u8(img, k, G)` and then `ridge_pass_into(G, ...)` in one walk down the image (decision 0091):
-    as soon as smoothed row y is written, row y − 1 gets the Laplacian test, and a block of candidates is
+    as soon as smoothed rows are written, the rows above them get the Laplacian test, and a block of candidates is
     processed when a row leaves at least `_STEGER_BLOCK` pending, while the rows it reads are still in
     cache. The same arithmetic in the same order as the two kernels, so the same G and the same outputs
-    (returns what `ridge_pass_into` returns; m = −1 when an output ran out of room)."""
+    (returns what `ridge_pass_into` returns; m = −1 when an output ran out of room).
+
+    The column pass makes two output rows at a time (`_column_pair`, decision 0155; a last odd row alone), so the
+    row ring holds K + 1 source rows (each twice, as in `gauss_u8`), and the rows are scanned in pairs: each scan is
+    followed by the block test as before, so the blocks, their order and every value are those of the row-by-row
+    walk."""
     H, W = img.shape
     K = len(k)
     rk = K // 2
+    R2 = K + 1  # ring slots: K + 1 source rows, each stored at slot and slot + R2
     ext = np.empty(W + 2 * rk, np.float32)
-    T = np.empty((2 * K, W), np.float32)
+    T = np.empty((2 * R2, W), np.float32)
     B = _STEGER_BLOCK
     tc = thr if thr_cross < 0 else np.float32(thr_cross)  # the crossing candidates' −λ2 threshold (0129)
     cap = B + W + 8
@@ -307,51 +420,47 @@ def smooth_ridges_u8(img, k, G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy
     il = np.empty(cap, np.int64)
     ix = np.empty(cap, np.int64)
     g = G.ravel()
-    cap_l = u.shape[0]
-    cap_x = xu.shape[0]
     n = 0
     npend = 0
     m = 0
     mx = 0
-    for yy in range(-rk, H + rk + 1):
-        last = yy == H + rk  # an extra step: only the final block
-        if not last:
-            # the Gaussian (gauss_u8): row pass of source row yy, column pass of output row yy − rk
-            sy = yy
-            if sy < 0:
-                sy = -sy - 1
-            elif sy >= H:
-                sy = 2 * H - sy - 1
-            src = img[sy]
-            for x in range(W):
-                ext[x + rk] = np.float32(src[x])
-            for x in range(rk):
-                ext[rk - 1 - x] = np.float32(src[x])
-                ext[W + rk + x] = np.float32(src[W - 1 - x])
-            slot = (yy + rk) % K
-            row = T[slot]
-            row2 = T[slot + K]
-            for x in range(W):
-                acc = ext[x] * k[0]
-                for j in range(1, K):
-                    acc = fma32(ext[x + j], k[j], acc)
-                row[x] = acc
-                row2[x] = acc
-            y = yy - rk
-            if y < 0:
-                continue
-            s0 = y % K
-            o = G[y]
-            for x in range(W):
-                acc = T[s0 + rk, x] * k[rk]
-                for j in range(1, rk + 1):
-                    acc = fma32(T[s0 + rk - j, x] + T[s0 + rk + j, x], k[rk + j], acc)
-                o[x] = acc
-        # the ridge pass (ridge_pass_into) on row r = y − 1, whose neighbours are now smoothed
-        r = yy - rk - 1
-        if r < 1:
+    r_next = 1  # the next row to scan (row 0 is a border row)
+    for yy in range(-rk, H + rk):
+        # the Gaussian (gauss_u8): row pass of source row yy
+        sy = yy
+        if sy < 0:
+            sy = -sy - 1
+        elif sy >= H:
+            sy = 2 * H - sy - 1
+        src = img[sy]
+        for x in range(W):
+            ext[x + rk] = np.float32(src[x])
+        for x in range(rk):
+            ext[rk - 1 - x] = np.float32(src[x])
+            ext[W + rk + x] = np.float32(src[W - 1 - x])
+        slot = (yy + rk) % R2
+        row = T[slot]
+        row2 = T[slot + R2]
+        for x in range(W):
+            acc = ext[x] * k[0]
+            for j in range(1, K):
+                acc = fma32(ext[x + j], k[j], acc)
+            row[x] = acc
+            row2[x] = acc
+        y = yy - rk  # source rows up to y + rk are filtered: output row y can be made
+        if y < 0:
             continue
-        if not last and r < H - 1:
+        if (y & 1) == 1:  # output rows y − 1 and y (source rows y − 1 − rk … y + rk)
+            _column_pair(T, (y - 1) % R2, k, G[y - 1], G[y], W)
+        elif y == H - 1:  # the last row of an odd height, alone
+            _column_one(T, y % R2, k, G[y], W)
+        else:
+            continue
+        # the ridge pass (ridge_pass_into) on the rows whose lower neighbour is now smoothed: r < y (r = H − 1, a
+        # border row, is never scanned: the final step below takes whatever is pending)
+        while r_next < y and r_next < H - 1:
+            r = r_next
+            r_next += 1
             a = G[r - 1]
             b = G[r]
             d = G[r + 1]
@@ -365,52 +474,191 @@ def smooth_ridges_u8(img, k, G, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy
                         npend += flag[c]
             if npend < B:
                 continue
-        elif not last:
-            continue  # r = H − 1 (a border row) before the final step: nothing to scan
-        nb = npend
-        n += nb
-        npend = 0
-        for j in range(nb):
-            i = cand[j]
-            V[0, j] = g[i]
-            V[1, j] = g[i + 1]
-            V[2, j] = g[i - 1]
-            V[3, j] = g[i + W]
-            V[4, j] = g[i - W]
-            V[5, j] = g[i + W + 1]
-            V[6, j] = g[i + W - 1]
-            V[7, j] = g[i - W + 1]
-            V[8, j] = g[i - W - 1]
-        steger_block(nb, V, thr, neg_aniso, neg_cross, tc, O)
-        kl = 0
-        kx = 0
-        for j in range(nb):
-            il[kl] = j
-            kl += O[7, j] != 0
-            ix[kx] = j
-            kx += O[6, j] != 0
-        if m + kl > cap_l or mx + kx > cap_x:
-            return n, -1, mx
-        for t in range(kx):
-            j = ix[t]
-            i = cand[j]
-            vv = i // W
-            xu[mx] = i - vv * W
-            xv[mx] = vv
-            xs[mx] = O[5, j]
-            mx += 1
-        for t in range(kl):
-            j = il[t]
-            i = cand[j]
-            vv = i // W
-            u[m] = i - vv * W
-            v[m] = vv
-            ox[m] = O[0, j]
-            oy[m] = O[1, j]
-            nx[m] = O[2, j]
-            ny[m] = O[3, j]
-            st[m] = O[4, j]
-            m += 1
+            nb = npend
+            n += nb
+            npend = 0
+            m, mx = _steger_flush(nb, cand, g, W, V, O, il, ix, thr, neg_aniso, neg_cross, tc, u, v, ox, oy, nx, ny, st,
+                                  xu, xv, xs, m, mx)
+            if m < 0:
+                return n, -1, mx
+    # the final block: whatever is pending
+    nb = npend
+    n += nb
+    m, mx = _steger_flush(nb, cand, g, W, V, O, il, ix, thr, neg_aniso, neg_cross, tc, u, v, ox, oy, nx, ny, st,
+                          xu, xv, xs, m, mx)
+    if m < 0:
+        return n, -1, mx
+    return n, m, mx
+
+
+_G_RING = 16  # rows of the working image `smooth_ridges_ring_u8` keeps (besides two copies at the ring's ends)
+
+
+@njit(error_model="numpy")
+def _ring_slot(r):
+    """The slot of working row r in `smooth_ridges_ring_u8`'s ring (1 … _G_RING; slots 0 and _G_RING + 1 hold
+    copies of the rows in slots _G_RING and 1, so that rows r − 1, r, r + 1 are always three consecutive slots)."""
+    return r % _G_RING + 1
+
+
+@njit(error_model="numpy")
+def _steger_flush_ring(nb, cand, candr, g, W, V, O, il, ix, thr, neg_aniso, neg_cross, tc, u, v, ox, oy, nx, ny, st, xu,
+                       xv, xs, m, mx):
+    """`_steger_flush` for candidates given by their place in the ring (cand: slot·W + column) and their row (candr)."""
+    for j in range(nb):
+        i = cand[j]
+        V[0, j] = g[i]
+        V[1, j] = g[i + 1]
+        V[2, j] = g[i - 1]
+        V[3, j] = g[i + W]
+        V[4, j] = g[i - W]
+        V[5, j] = g[i + W + 1]
+        V[6, j] = g[i + W - 1]
+        V[7, j] = g[i - W + 1]
+        V[8, j] = g[i - W - 1]
+    steger_block(nb, V, thr, neg_aniso, neg_cross, tc, O)
+    kl = 0
+    kx = 0
+    for j in range(nb):
+        il[kl] = j
+        kl += O[7, j] != 0
+        ix[kx] = j
+        kx += O[6, j] != 0
+    if m + kl > u.shape[0] or mx + kx > xu.shape[0]:
+        return -1, mx
+    for t in range(kx):
+        j = ix[t]
+        vv = np.int64(candr[j])
+        xu[mx] = cand[j] - _ring_slot(vv) * W
+        xv[mx] = vv
+        xs[mx] = O[5, j]
+        mx += 1
+    for t in range(kl):
+        j = il[t]
+        vv = np.int64(candr[j])
+        u[m] = cand[j] - _ring_slot(vv) * W
+        v[m] = vv
+        ox[m] = O[0, j]
+        oy[m] = O[1, j]
+        nx[m] = O[2, j]
+        ny[m] = O[3, j]
+        st[m] = O[4, j]
+        m += 1
+    return m, mx
+
+
+@njit(error_model="numpy")
+def smooth_ridges_ring_u8(img, k, thr_lap, thr, neg_aniso, neg_cross, u, v, ox, oy, nx, ny, st, xu, xv, xs, thr_cross=-1.0):
+    """`smooth_ridges_u8` without the full working image (decision 0155): the smoothed rows go into a ring of
+    `_G_RING` rows (plus copies of its first and last slot, so that a candidate's three rows are consecutive), which
+    the Laplacian test and the blocks read. A block is also processed (early) when the ring is about to overwrite a row
+    its pending candidates read. Every candidate is computed on its own, so the block boundaries change no value: the
+    outputs are `smooth_ridges_u8`'s (and `gauss_u8` + `ridge_pass_into`'s), in the same order; n likewise when
+    m ≥ 0. Saves writing and reading back the 4·H·W-byte image (5 MB at 1280×1024)."""
+    H, W = img.shape
+    K = len(k)
+    rk = K // 2
+    R2 = K + 1
+    RG = _G_RING
+    ext = np.empty(W + 2 * rk, np.float32)
+    T = np.empty((2 * R2, W), np.float32)
+    Gr = np.zeros((RG + 2, W), np.float32)
+    g = Gr.ravel()
+    B = _STEGER_BLOCK
+    tc = thr if thr_cross < 0 else np.float32(thr_cross)  # the crossing candidates' −λ2 threshold (0129)
+    cap = B + W + 8
+    cand = np.empty(cap, np.int32)
+    candr = np.empty(cap, np.int32)
+    flag = np.zeros((W + 7) // 8 * 8, np.uint8)
+    flag8 = flag.view(np.uint64)
+    V = np.empty((9, cap), np.float32)
+    O = np.empty((8, cap), np.float32)
+    il = np.empty(cap, np.int64)
+    ix = np.empty(cap, np.int64)
+    n = 0
+    npend = 0
+    m = 0
+    mx = 0
+    r_next = 1
+    for yy in range(-rk, H + rk):
+        sy = yy
+        if sy < 0:
+            sy = -sy - 1
+        elif sy >= H:
+            sy = 2 * H - sy - 1
+        src = img[sy]
+        for x in range(W):
+            ext[x + rk] = np.float32(src[x])
+        for x in range(rk):
+            ext[rk - 1 - x] = np.float32(src[x])
+            ext[W + rk + x] = np.float32(src[W - 1 - x])
+        slot = (yy + rk) % R2
+        row = T[slot]
+        row2 = T[slot + R2]
+        for x in range(W):
+            acc = ext[x] * k[0]
+            for j in range(1, K):
+                acc = fma32(ext[x + j], k[j], acc)
+            row[x] = acc
+            row2[x] = acc
+        y = yy - rk
+        if y < 0:
+            continue
+        pair = (y & 1) == 1
+        if not pair and y != H - 1:
+            continue
+        # writing row y overwrites row y − RG: pending candidates read rows from candr[0] − 1 on
+        if npend > 0 and y >= candr[0] - 1 + RG:
+            nb = npend
+            n += nb
+            npend = 0
+            m, mx = _steger_flush_ring(nb, cand, candr, g, W, V, O, il, ix, thr, neg_aniso, neg_cross, tc, u, v, ox, oy,
+                                       nx, ny, st, xu, xv, xs, m, mx)
+            if m < 0:
+                return n, -1, mx
+        if pair:
+            _column_pair(T, (y - 1) % R2, k, Gr[_ring_slot(y - 1)], Gr[_ring_slot(y)], W)
+            lo = y - 1
+        else:
+            _column_one(T, y % R2, k, Gr[_ring_slot(y)], W)
+            lo = y
+        for yr in range(lo, y + 1):  # the copies at the ring's ends
+            sl = _ring_slot(yr)
+            if sl == RG:
+                Gr[0, :] = Gr[RG, :]
+            elif sl == 1:
+                Gr[RG + 1, :] = Gr[1, :]
+        while r_next < y and r_next < H - 1:
+            r = r_next
+            r_next += 1
+            sr = _ring_slot(r)
+            a = Gr[sr - 1]
+            b = Gr[sr]
+            d = Gr[sr + 1]
+            for c in range(1, W - 1):
+                flag[c] = ((((a[c] + b[c - 1]) + _F32_M4 * b[c]) + b[c + 1]) + d[c]) < thr_lap
+            base = sr * W
+            for w in range(len(flag8)):
+                if flag8[w] != 0:
+                    for c in range(8 * w, 8 * w + 8):
+                        cand[npend] = base + c
+                        candr[npend] = r
+                        npend += flag[c]
+            if npend < B:
+                continue
+            nb = npend
+            n += nb
+            npend = 0
+            m, mx = _steger_flush_ring(nb, cand, candr, g, W, V, O, il, ix, thr, neg_aniso, neg_cross, tc, u, v, ox, oy,
+                                       nx, ny, st, xu, xv, xs, m, mx)
+            if m < 0:
+                return n, -1, mx
+    nb = npend
+    n += nb
+    m, mx = _steger_flush_ring(nb, cand, candr, g, W, V, O, il, ix, thr, neg_aniso, neg_cross, tc, u, v, ox, oy, nx, ny,
+                               st, xu, xv, xs, m, mx)
+    if m < 0:
+        return n, -1, mx
     return n, m, mx
 
 
@@ -627,7 +875,7 @@ def centroids(grid, xu, xv, xs, sx, sy, cs, pad, rmax):
         c = min(max(int(qx / cs) + pad, 0), GW - 1)
         r = min(max(int(qy / cs) + pad, 0), GH - 1)
         k = grid[r, c]
-        if k < 0 or math.hypot(qx - sx[k], qy - sy[k]) > rmax:
+        if k < 0 or hypot_gt(qx - sx[k], qy - sy[k], rmax):
             continue
         w = np.float64(xs[i])
         wsum[k] += w
@@ -917,7 +1165,7 @@ def end_walks(sidx, sg, sproj, smin, smax, qx, qy, nx, ny, fam, seg_family, seg_
                     if np.float32(math.sqrt(dx * dx + dy * dy)) <= r_side32:
                         kk = h
                         break
-            if kk >= 0 and math.hypot(ex - sx[kk], ey - sy[kk]) <= r_reach:
+            if kk >= 0 and hypot_le(ex - sx[kk], ey - sy[kk], r_reach):
                 seg_seed[g, e] = kk
                 continue
             # a free end running into a line of the other family is a T
@@ -1224,7 +1472,7 @@ def junction_verdicts(cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin, s
         qy = cen[a, 1] + t * dr[a, 1]
         qj[k, 0] = qx
         qj[k, 1] = qy
-        o = (math.hypot(qx - sx[k], qy - sy[k]) > off_tol) | (not (np.isfinite(qx) & np.isfinite(qy)))
+        o = hypot_gt(qx - sx[k], qy - sy[k], off_tol) | (not (np.isfinite(qx) & np.isfinite(qy)))
         offc[k] = o
         if ok and o:
             counts[3] += 1
@@ -1580,6 +1828,9 @@ def compressed_spacing(n_ring, cx, cy, r0, r_att):
     ys = cy[order]
     lo_d = 2.0 * r0
     hi_d = min(2.0 * r_att, 2.0 * r0 + 4.0)
+    nbx = np.empty(ns)  # the neighbours of one candidate at a time (allocated once; decision 0155)
+    nby = np.empty(ns)
+    nbd = np.empty(ns)
     for k in range(ns):
         if n_ring[k, 0] >= 2 and n_ring[k, 1] >= 2:
             continue
@@ -1587,14 +1838,13 @@ def compressed_spacing(n_ring, cx, cy, r0, r_att):
         b = np.searchsorted(ys, cy[k] + hi_d, side="right")
         n = 0
         dup = False
-        nbx = np.empty(b - a)
-        nby = np.empty(b - a)
-        nbd = np.empty(b - a)
         for t in range(a, b):
             m = order[t]
             if m == k:
                 continue
             dx = cx[m] - cx[k]
+            if abs(dx) > hi_d:  # then d ≥ |dx| > hi_d > lo_d: neither a duplicate nor a neighbour (0155)
+                continue
             dy = cy[m] - cy[k]
             d = math.sqrt(dx * dx + dy * dy)
             if d <= lo_d:

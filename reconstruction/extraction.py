@@ -28,10 +28,11 @@ top-left pixel). The method (docs/reconstruction.md, decisions 0040, 0041, 0055�
    within two smoothing scales of an end that reaches no crossing (a line cut by a silhouette or shadow)
    leave their segment: the cut bends the ridge there (decision 0059).
 
-Speed (decisions 0062, 0063, 0069, 0079, 0087, 0091): the smoothing writes a per-thread working image. For an
-8-bit image whose width is a multiple of 16 and a kernel of at most 15 taps it is a numba kernel computing
-OpenCV's `sepFilter2D` bits (its FMA order), in the same walk as the ridge pass below; otherwise it is one
-OpenCV call. Every per-pixel and per-sample step is a numba kernel (`reconstruction/_extract_kernels.py`): one walk
+Speed (decisions 0062, 0063, 0069, 0079, 0087, 0091, 0155): for an 8-bit image whose width is a multiple of 16 and
+a kernel of at most 15 taps the smoothing is a numba kernel computing OpenCV's `sepFilter2D` bits (its FMA order), in
+the same walk as the ridge pass below, its column pass two rows at a time and its rows in a ring of 16 (no full
+working image, `smooth_ridges_ring_u8`, decision 0155); otherwise it is one OpenCV call into a per-thread working
+image. Every per-pixel and per-sample step is a numba kernel (`reconstruction/_extract_kernels.py`): one walk
 over the image for the Laplacian test (a vectorised loop per row, candidates collected branch-free) that
 computes the Hessian, eigenvector and Steger offset of the candidates in blocks that LLVM vectorises as
 soon as a block's rows have been scanned (row-major, so sample order is the scan order; outputs in
@@ -290,6 +291,9 @@ def _work_buffer(shape: tuple[int, int]) -> np.ndarray:
     return buf
 
 
+_RING_WALK = True  # the fused walk without the full working image (decision 0155; False: `smooth_ridges_u8`, as before)
+
+
 def _ridges(G: np.ndarray, thr_lap, thr, neg_aniso, neg_cross, thr_cross=np.float32(-1.0), *,
             image: np.ndarray | None = None, taps: tuple = ()) -> tuple:
     """`_extract_kernels.ridge_pass` with its outputs in arrays owned by the calling thread (views of them
@@ -306,7 +310,9 @@ def _ridges(G: np.ndarray, thr_lap, thr, neg_aniso, neg_cross, thr_cross=np.floa
             i64, f32 = np.int64, np.float32
             bufs = tuple(np.empty(cap, t) for t in (i64, i64, f32, f32, f32, f32, f32, i64, i64, f32))
             _workspace.ridge = bufs
-        if image is not None:
+        if image is not None and _RING_WALK:  # the working image kept as a ring of rows only (decision 0155)
+            n, m, mx = _k.smooth_ridges_ring_u8(image, taps, thr_lap, thr, neg_aniso, neg_cross, *bufs, thr_cross)
+        elif image is not None:
             n, m, mx = _k.smooth_ridges_u8(image, taps, G, thr_lap, thr, neg_aniso, neg_cross, *bufs, thr_cross)
         else:
             n, m, mx = _k.ridge_pass_into(G, thr_lap, thr, neg_aniso, neg_cross, *bufs, thr_cross)
@@ -394,6 +400,8 @@ def _second_derivative_noise_gain(sigma: float, scale: int) -> float:
 
 
 _PAD = 16  # margin (cells) of the lookup grids
+_GRID_NARROW = True  # int16 lookup grids where the ids fit (decision 0155; False: int32 throughout, as before)
+_INT16_IDS = 32767  # ids 0 … 32766 and −1 fit in an int16
 
 _dir_f32: tuple = (None, None)  # (model.dir_cam, its float32 (gh·gw, 4) copy): the last rig's
 
@@ -498,7 +506,10 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     inv_cs = np.float32(1 / cs)
     gsh2 = (int(Hw / cs) + 2, int(Ww / cs) + 2)
 
-    grid = np.empty((gsh2[0] + 2 * _PAD, gsh2[1] + 2 * _PAD), np.int32)  # one buffer for both lookup grids
+    # one buffer for both lookup grids; int16 while every id it can hold fits (decision 0155: half the memory the
+    # stamps fill and the lookups read; the same values)
+    narrow = _GRID_NARROW and 2 * len(xs) < _INT16_IDS
+    grid = np.empty((gsh2[0] + 2 * _PAD, gsh2[1] + 2 * _PAD), np.int16 if narrow else np.int32)
 
     def stamp(centres: np.ndarray, radius: float) -> np.ndarray:
         c = np.ascontiguousarray(centres, np.float64).reshape(-1, 2)
@@ -713,6 +724,8 @@ def extract_grid(image: np.ndarray, model: RigModel, *, options: ExtractOptions 
     if len(biased) and P:
         r_bias = r0 + s_w
         b32 = np.asarray(biased, np.float32).reshape(-1, 2)
+        if grid.dtype == np.int16 and len(biased) >= _INT16_IDS:
+            grid = np.empty(grid.shape, np.int32)
         stats["biased_samples"] = _k.leave_near(
             stamp(biased, r_bias), qx32, qy32, inv_cs, _PAD, b32[:, 0].copy(), b32[:, 1].copy(), np.float32(r_bias), sample_junction, seg_out
         )  # fmt: skip
