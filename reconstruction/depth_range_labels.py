@@ -152,14 +152,49 @@ def _k_stretch_one(x, y, fam, R, t, z, Kp, dist, has_dist, cu, cv, nn, offs, ind
 
 
 @njit
+def _k_stretch_pair(x, y, fam, R, t, z0, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min):
+    """(`_k_stretch_one` at z0, `_k_stretch_one` at z1) in one call: the ray's direction R·(x, y, 1) is computed
+    once for both depths. Every value goes through the same operations in the same order as in `_k_stretch_one`, so
+    both are the same bit for bit; ~40 % less time than two calls (decision 0159)."""
+    ax = R[0, 0] * x + R[0, 1] * y + R[0, 2]
+    ay = R[1, 0] * x + R[1, 1] * y + R[1, 2]
+    az = R[2, 0] * x + R[2, 1] * y + R[2, 2]
+    f = fam - 1
+    out0 = np.nan
+    out1 = np.nan
+    for w in range(2):
+        z = z0 if w == 0 else z1
+        px = t[0] + z * ax
+        py = t[1] + z * ay
+        pz = t[2] + z * az
+        if not pz > 0:
+            continue
+        u = px / pz
+        v = py / pz
+        if has_dist:
+            r2 = u * u + v * v
+            radial = 1 + r2 * (dist[0] + r2 * (dist[1] + r2 * dist[4]))
+            ud = u * radial + 2 * dist[2] * u * v + dist[3] * (r2 + 2 * u * u)
+            vd = v * radial + dist[2] * (r2 + 2 * v * v) + 2 * dist[3] * u * v
+            u, v = ud, vd
+        X = Kp[0, 0] * u + Kp[0, 1] * v + Kp[0, 2] - cu
+        Y = Kp[1, 1] * v + Kp[1, 2] - cv
+        c = _fractional_k(Y - nn[f] * X, offs[f], index_min)
+        if w == 0:
+            out0 = c
+        else:
+            out1 = c
+    return out0, out1
+
+
+@njit
 def _k_stretches_meet(xy, a, b, f, R, t, z0, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min, tol_f):
     """The intersection (lo, hi) in index units of family f's stretches (widened by tol_f) of positions a … b − 1;
     lo = inf when a ray misses the projector. Stops as soon as no integer is left in it."""
     lo = -np.inf
     hi = np.inf
     for s in range(a, b):
-        c0 = _k_stretch_one(xy[s, 0], xy[s, 1], f, R, t, z0, Kp, dist, has_dist, cu, cv, nn, offs, index_min)
-        c1 = _k_stretch_one(xy[s, 0], xy[s, 1], f, R, t, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min)
+        c0, c1 = _k_stretch_pair(xy[s, 0], xy[s, 1], f, R, t, z0, z1, Kp, dist, has_dist, cu, cv, nn, offs, index_min)
         if not (math.isfinite(c0) and math.isfinite(c1)):
             return np.inf, hi
         lo = max(lo, min(c0, c1) - tol_f)
