@@ -16,9 +16,10 @@ Metrics (per scene and labeller):
 - coverage: share of the visible, lit line-centre pixels (true projector position within half a camera
   pixel of a line's centre, measured across the line, on the drawn part of the line; decision 0101) that have
   a reconstructed point within 1.5 camera px;
-- time per stage (ms, median of --repeat runs, one OpenCV thread), taken after the accuracy pass in rounds that
-  run every scene and labeller once each (`time_round_robin`), so that the shared machine's slow spells fall
-  on all rows alike.
+- time per stage (ms, median of --repeat rounds, 30 by default, one OpenCV thread), taken after the accuracy
+  pass in rounds that run every scene and labeller once each (`time_round_robin`), so that the shared machine's
+  slow spells fall on all rows alike; a round takes about half a second, so 30 rounds span long enough for a
+  slow spell of a few seconds not to decide the median.
 """
 
 from __future__ import annotations
@@ -103,7 +104,7 @@ def time_round_robin(jobs: list, repeat: int) -> list[dict]:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="one paper scene and the 1280x1024 rig only")
-    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--repeat", type=int, default=30, help="timing rounds over all rows (median per row)")
     ap.add_argument("--noise", type=float, default=2.0)
     args = ap.parse_args()
     cv2.setNumThreads(1)
