@@ -44,7 +44,7 @@ def _obs(q, edges, delta, rms=None):
 
 def _random_graph(seed):
     """Junctions of a few lattice patches on seed 133's rig (`test_recon_misfit_edges`), their true edges, then damage:
-    junctions moved off their lines (outliers, a displaced block: a residual cluster), edges that skip a crossing
+    junctions moved off their lines (outliers, a displaced block: a residual cluster, patches noisier than the frame), edges that skip a crossing
     (step doubled), edges with a wrong step, edges joining two patches, lone junctions, noise of 0.03–0.3 px."""
     rng = np.random.default_rng(seed)
     procam, pattern = _m.tabletop_procam(), _m._pattern()
@@ -70,11 +70,13 @@ def _random_graph(seed):
         a, b = (int(x) for x in rng.integers(M, size=2))
         if a != b:
             edges.append((a, b)), delta.append((int(rng.integers(-1, 2)), int(rng.integers(0, 2))))
-    q = q.copy()
+    extra = rng.choice([0.0, 0.0, 0.3, 0.6], len(boxes))
+    q = q + rng.normal(0, 1, q.shape) * extra[part, None]  # noisier patches than the frame: decision 0123's frame limit
     for k in rng.choice(M, size=int(rng.integers(0, max(2, M // 15))), replace=False):  # outliers
         q[k] += rng.normal(0, 3.0, 2)
-    if rng.random() < 0.5 and M > 20:  # a displaced block of neighbours: a residual cluster
-        k = int(rng.integers(M))
+    quiet = np.flatnonzero(extra[part] == 0)
+    if rng.random() < 0.7 and len(quiet) > 20:  # a displaced block of neighbours in a quiet patch: a residual cluster
+        k = int(rng.choice(quiet))
         near = np.argsort(np.linalg.norm(q - q[k], axis=1))[:5]
         q[near] += rng.normal(0, 0.6, 2)
     rms = np.abs(rng.normal(0.05, 0.05, (M, 2))) * rng.choice([1.0, 10.0], (M, 1))  # arms' fit RMS (decision 0134's floor)
