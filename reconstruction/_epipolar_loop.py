@@ -85,6 +85,166 @@ def _shared_error(members, rm, lm, off0, off1, s1, s2, n_eff, xy_junction, index
 
 
 @njit
+def _restep(members, off0, off1, cut, rpos, keep, edges_all, delta_all, rel, lines, xy_junction, index_min, index_max, fx,
+            skip_max_steps, skip_tol, cut_tol, a_all, b_all, start, nbr, have_adj, gpos):
+    """labelling's `_restep(members, off, cut_ok)` (cut: cut_misfit_edges and cut_ok): keep, delta_all and rel updated
+    in place as it updates them. Returns (did (False: `_restep` returned None), edges re-stepped, edges cut, the
+    pieces as members[p_order[p_bounds[q]:p_bounds[q + 1]]], and the adjacency (start, nbr, have_adj), built here if
+    this is its first use)."""
+    m = members.shape[0]
+    sel, pa, pb, k = component_edge_steps(members, rpos, keep, edges_all, delta_all, rel, off0, off1, lines, xy_junction,
+                                          index_min, index_max, fx, skip_max_steps, skip_tol)
+    n_sel = sel.shape[0]
+    empty = np.zeros(0, np.intp)
+    if n_sel == 0:
+        return False, 0, 0, empty, empty, start, nbr, have_adj
+    n_changed = 0
+    for e in range(n_sel):
+        if k[e] != 1:
+            n_changed += 1
+    is_cut = np.zeros(n_sel, np.bool_)
+    n_cut = 0
+    if cut:
+        if not have_adj:
+            start, nbr = kept_adjacency(rel.shape[0], a_all, b_all, keep)
+            have_adj = True
+        d_i = np.empty(n_sel, np.int64)
+        d_j = np.empty(n_sel, np.int64)
+        for e in range(n_sel):
+            d_i[e] = delta_all[sel[e], 0]
+            d_j[e] = delta_all[sel[e], 1]
+        lab_m = np.empty((m, 2), np.int64)
+        ln_m = np.empty((m, 3))
+        for p in range(m):
+            i = members[p]
+            lab_m[p, 0] = rel[i, 0] + off0
+            lab_m[p, 1] = rel[i, 1] + off1
+            ln_m[p, 0] = lines[i, 0]
+            ln_m[p, 1] = lines[i, 1]
+            ln_m[p, 2] = lines[i, 2]
+        mis = edge_misfits(pa, pb, d_i, d_j, lab_m, ln_m, xy_junction, index_min, index_max, fx, skip_max_steps, cut_tol, members,
+                           start, nbr, gpos)
+        for e in range(n_sel):
+            if mis[e] and k[e] == 1:
+                is_cut[e] = True
+                n_cut += 1
+    if n_changed == 0 and n_cut == 0:
+        return False, 0, 0, empty, empty, start, nbr, have_adj
+    for e in range(n_sel):
+        if k[e] != 1:
+            delta_all[sel[e], 0] *= k[e]
+            delta_all[sel[e], 1] *= k[e]
+    n_s = n_sel - n_cut
+    s_sel = np.empty(n_s, np.intp)
+    s_a = np.empty(n_s, np.intp)
+    s_b = np.empty(n_s, np.intp)
+    s_d0 = np.empty(n_s, np.int64)
+    s_d1 = np.empty(n_s, np.int64)
+    c = 0
+    for e in range(n_sel):
+        if is_cut[e]:
+            keep[sel[e]] = False
+            continue
+        s_sel[c] = sel[e]
+        s_a[c] = pa[e]
+        s_b[c] = pb[e]
+        s_d0[c] = delta_all[sel[e], 0]
+        s_d1[c] = delta_all[sel[e], 1]
+        c += 1
+    keep_s, _removed, sub_rel, sub_comp = clean_edges_walk(m, s_a, s_b, s_d0, s_d1, 2)
+    for e in range(n_s):
+        if not keep_s[e]:
+            keep[s_sel[e]] = False
+    for p in range(m):
+        rel[members[p], 0] = sub_rel[p, 0]
+        rel[members[p], 1] = sub_rel[p, 1]
+    p_order, p_bounds = group_order(sub_comp)
+    return True, n_changed, n_cut, p_order, p_bounds, start, nbr, have_adj
+
+
+@njit
+def _push(src, p_order, p_bounds, min_len, buf, top, w_start, w_len, w_rounds, w_g, w_may, n_w, rounds, may, component, next_id):
+    """Push the pieces src[p_order[p_bounds[q]:p_bounds[q + 1]]] of at least min_len junctions on the work stack (in
+    order: the last is popped first), each a new component id. Returns (n_w, top, next_id, junctions of the pieces
+    dropped)."""
+    dropped = 0
+    for q in range(p_bounds.shape[0] - 1):
+        nq = p_bounds[q + 1] - p_bounds[q]
+        if nq < min_len:
+            dropped += nq
+            continue
+        for h in range(nq):
+            j = src[p_order[p_bounds[q] + h]]
+            buf[top + h] = j
+            component[j] = next_id
+        next_id += 1
+        w_start[n_w] = top
+        w_len[n_w] = nq
+        w_rounds[n_w] = rounds
+        w_g[n_w] = -1
+        w_may[n_w] = may
+        n_w += 1
+        top += nq
+    return n_w, top, next_id, dropped
+
+
+@njit
+def _inlier_retry(members, rm, lm, xm, r_full, lim, off0, off1, xy_junction, blocks, B, index_min, index_max, fx, n_refs, band_px,
+                  min_inside, cap2, R, t, z_min, z_max, noise_floor2, chi2, rms_ratio2, neighbour_noise, keep, a_all, b_all, start,
+                  nbr, have_adj, gpos, stats):
+    """`_choice_of`'s inlier retry (decision 0123): `_choose_offset` on the members with a finite residual ≤ lim, without
+    a retry or a re-step (its stats counted in stats). Returns (accepted with the same offset, start, nbr, have_adj)."""
+    m = members.shape[0]
+    n_inl = 0
+    for p in range(m):
+        x = r_full[p]
+        if math.isfinite(x) and x <= lim:
+            n_inl += 1
+    mi = np.empty(n_inl, np.intp)
+    ri = np.empty((n_inl, 2), np.int64)
+    li = np.empty((n_inl, 3))
+    xi = np.empty((n_inl, 2))
+    c = 0
+    for p in range(m):
+        x = r_full[p]
+        if math.isfinite(x) and x <= lim:
+            mi[c] = members[p]
+            ri[c, 0] = rm[p, 0]
+            ri[c, 1] = rm[p, 1]
+            li[c, 0] = lm[p, 0]
+            li[c, 1] = lm[p, 1]
+            li[c, 2] = lm[p, 2]
+            xi[c, 0] = xm[p, 0]
+            xi[c, 1] = xm[p, 1]
+            c += 1
+    st, nf, ok, s1, s2, ne, ob, _r, _in = offset_choice_b(ri, li, xi, xy_junction, blocks, B, index_min, index_max, fx, n_refs, band_px,
+                                                         min_inside, cap2, R, t, z_min, z_max)
+    sub_ok = False
+    if st != 0:
+        if st >= 2:
+            stats[S_OUT_OF_PATTERN] += 1
+    else:
+        stats[S_OUT_OF_DEPTH] += nf
+        if ok:
+            if _is_ambiguous(ne, s1, s2, noise_floor2, chi2, rms_ratio2):
+                if neighbour_noise:
+                    sigma2 = s1
+                    if noise_floor2 > sigma2:
+                        sigma2 = noise_floor2
+                    if not (ne * (s2 - s1) / sigma2 < chi2):
+                        if not have_adj:
+                            start, nbr = kept_adjacency(gpos.shape[0], a_all, b_all, keep)
+                            have_adj = True
+                        if _shared_error(mi, ri, li, ob[0], ob[1], s1, s2, ne, xy_junction, index_min, index_max, fx, start, nbr, gpos,
+                                         cap2, noise_floor2, chi2, rms_ratio2):
+                            stats[S_NOISE_SPLIT] += 1
+                            sub_ok = True
+            else:
+                sub_ok = True
+    return sub_ok and ob[0] == off0 and ob[1] == off1, start, nbr, have_adj
+
+
+@njit
 def work_loop(order, bounds, g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, g_limit, g_r, g_in, g_written, g_bad, g_nbad,
               lone_rejected, has_lone, rel, lines, xy_cam, xy_junction, blocks, B, index_min, index_max, fx, n_refs, band_px,
               min_inside, cap2, R, t, z_min, z_max, keep, edges_all, delta_all, a_all, b_all, labels, residual, amb_best, amb_all,
@@ -149,126 +309,24 @@ def work_loop(order, bounds, g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, 
             left[L_AMBIGUOUS] += m
             stats[S_AMBIGUOUS] += 1
             continue
-        # --- the re-step (labelling's _restep), run at most once per component below: its pieces in p_order/p_bounds
-        do_restep = False
-        restep_off0 = 0
-        restep_off1 = 0
-        restep_cut_ok = False
-        accepted_restep = False
-        if g >= 0 and g_written[g] and skip_edges_accepted and restep:
-            do_restep = True
-            accepted_restep = True
-            restep_off0 = g_off[g, 0]
-            restep_off1 = g_off[g, 1]
-        # the choice (labelling._choice_of), unless written in the first round
-        reason = -1  # −1 accepted; L_AMBIGUOUS, L_NO_OFFSET; 99: re-stepped
-        bad = np.zeros(0, np.bool_)
-        inside_m = np.zeros(0, np.bool_)
-        n_bad = 0
         written = g >= 0 and g_written[g]
-        if do_restep:
-            # ---- _restep(members, off, cut_ok=False) on an accepted component (decision 0146)
-            # ---- _restep(members, off, cut_ok)
-            sel, pa, pb, k = component_edge_steps(members, rpos, keep, edges_all, delta_all, rel, restep_off0, restep_off1, lines,
-                                                  xy_junction, index_min, index_max, fx, skip_max_steps, skip_tol)
-            did = False
-            n_sel = sel.shape[0]
-            if n_sel > 0:
-                n_changed = 0
-                for e in range(n_sel):
-                    if k[e] != 1:
-                        n_changed += 1
-                cut = np.zeros(n_sel, np.bool_)
-                n_cut = 0
-                if cut_misfit_edges and restep_cut_ok:
-                    if not have_adj:
-                        start, nbr = kept_adjacency(M, a_all, b_all, keep)
-                        have_adj = True
-                    d_i = np.empty(n_sel, np.int64)
-                    d_j = np.empty(n_sel, np.int64)
-                    for e in range(n_sel):
-                        d_i[e] = delta_all[sel[e], 0]
-                        d_j[e] = delta_all[sel[e], 1]
-                    lab_m = np.empty((m, 2), np.int64)
-                    ln_m = np.empty((m, 3))
-                    for p in range(m):
-                        i = members[p]
-                        lab_m[p, 0] = rel[i, 0] + restep_off0
-                        lab_m[p, 1] = rel[i, 1] + restep_off1
-                        ln_m[p, 0] = lines[i, 0]
-                        ln_m[p, 1] = lines[i, 1]
-                        ln_m[p, 2] = lines[i, 2]
-                    mis = edge_misfits(pa, pb, d_i, d_j, lab_m, ln_m, xy_junction, index_min, index_max, fx, skip_max_steps,
-                                       cut_tol, members, start, nbr, gpos)
-                    for e in range(n_sel):
-                        if mis[e] and k[e] == 1:
-                            cut[e] = True
-                            n_cut += 1
-                if n_changed > 0 or n_cut > 0:
-                    did = True
-                    if n_changed > 0:
-                        for e in range(n_sel):
-                            if k[e] != 1:
-                                delta_all[sel[e], 0] *= k[e]
-                                delta_all[sel[e], 1] *= k[e]
-                        stats[S_EDGES_RESTEPPED] += n_changed
-                    if n_cut > 0:
-                        stats[S_EDGES_CUT] += n_cut
-                    n_s = n_sel - n_cut
-                    s_sel = np.empty(n_s, np.intp)
-                    s_a = np.empty(n_s, np.intp)
-                    s_b = np.empty(n_s, np.intp)
-                    s_d0 = np.empty(n_s, np.int64)
-                    s_d1 = np.empty(n_s, np.int64)
-                    c = 0
-                    for e in range(n_sel):
-                        if cut[e]:
-                            keep[sel[e]] = False
-                            continue
-                        s_sel[c] = sel[e]
-                        s_a[c] = pa[e]
-                        s_b[c] = pb[e]
-                        s_d0[c] = delta_all[sel[e], 0]
-                        s_d1[c] = delta_all[sel[e], 1]
-                        c += 1
-                    keep_s, _rm, sub_rel, sub_comp = clean_edges_walk(m, s_a, s_b, s_d0, s_d1, 2)
-                    for e in range(n_s):
-                        if not keep_s[e]:
-                            keep[s_sel[e]] = False
-                    for p in range(m):
-                        rel[members[p], 0] = sub_rel[p, 0]
-                        rel[members[p], 1] = sub_rel[p, 1]
-                    p_order, p_bounds = group_order(sub_comp)
-                    any_cut = n_cut > 0
-                    stats[S_COMPONENTS_RESTEPPED] += 1
-                    if accepted_restep:
-                        # decision 0146: the accepted component's labels taken back, its pieces labelled again
-                        stats[S_RESTEPPED_ACCEPTED] += 1
-                        for p in range(m):
-                            labels[members[p], 0] = unlabelled
-                            labels[members[p], 1] = unlabelled
-                            residual[members[p]] = np.nan
-                    for q in range(p_bounds.shape[0] - 1):
-                        nq = p_bounds[q + 1] - p_bounds[q]
-                        if (not accepted_restep) and any_cut and nq < min_split:
-                            left[L_SPLIT_SMALL] += nq
-                            continue
-                        for h in range(nq):
-                            j = members[p_order[p_bounds[q] + h]]
-                            buf[top + h] = j
-                            component[j] = next_id
-                        next_id += 1
-                        w_start[n_w] = top
-                        w_len[n_w] = nq
-                        w_rounds[n_w] = rounds
-                        w_g[n_w] = -1
-                        w_may[n_w] = False
-                        n_w += 1
-                        top += nq
+        if written and skip_edges_accepted and restep:
+            # decision 0146: an accepted component's edges re-stepped under its offset (no cuts); if any changed, its labels
+            # are taken back and its pieces labelled again
+            did, n_ch, n_cut, p_order, p_bounds, start, nbr, have_adj = _restep(
+                members, g_off[g, 0], g_off[g, 1], False, rpos, keep, edges_all, delta_all, rel, lines, xy_junction, index_min,
+                index_max, fx, skip_max_steps, skip_tol, cut_tol, a_all, b_all, start, nbr, have_adj, gpos)
             if did:
-                reason = 99
-        if reason == 99:
-            continue
+                stats[S_EDGES_RESTEPPED] += n_ch
+                stats[S_COMPONENTS_RESTEPPED] += 1
+                stats[S_RESTEPPED_ACCEPTED] += 1
+                for p in range(m):
+                    labels[members[p], 0] = unlabelled
+                    labels[members[p], 1] = unlabelled
+                    residual[members[p]] = np.nan
+                n_w, top, next_id, _d = _push(members, p_order, p_bounds, 0, buf, top, w_start, w_len, w_rounds, w_g, w_may, n_w,
+                                              rounds, False, component, next_id)
+                continue
         if written:
             stats[S_OUT_OF_DEPTH] += g_fail[g]
             stats[S_LABELLED] += 1
@@ -277,6 +335,8 @@ def work_loop(order, bounds, g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, 
             bad = g_bad[b0 : b0 + m]
             inside_m = g_in[b0 : b0 + m]
         else:
+            # the choice (labelling._choice_of)
+            reason = -1  # −1: accepted; else an L_* index
             has_limit = False
             limit = 0.0
             rm, lm, xm = _gather(members, rel, lines, xy_cam)
@@ -325,152 +385,40 @@ def work_loop(order, bounds, g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, 
                         stats[S_NOISE_SPLIT] += 1
                     else:
                         if restep:
-                            # ---- decision 0125: the re-step under the best offset, with 0130's cuts (the same code as above)
-                            sel, pa, pb, k = component_edge_steps(members, rpos, keep, edges_all, delta_all, rel, off0, off1, lines,
-                                                                  xy_junction, index_min, index_max, fx, skip_max_steps, skip_tol)
-                            n_sel = sel.shape[0]
-                            if n_sel > 0:
-                                n_changed = 0
-                                for e in range(n_sel):
-                                    if k[e] != 1:
-                                        n_changed += 1
-                                cut = np.zeros(n_sel, np.bool_)
-                                n_cut = 0
-                                if cut_misfit_edges:
-                                    if not have_adj:
-                                        start, nbr = kept_adjacency(M, a_all, b_all, keep)
-                                        have_adj = True
-                                    d_i = np.empty(n_sel, np.int64)
-                                    d_j = np.empty(n_sel, np.int64)
-                                    for e in range(n_sel):
-                                        d_i[e] = delta_all[sel[e], 0]
-                                        d_j[e] = delta_all[sel[e], 1]
-                                    lab_m = np.empty((m, 2), np.int64)
-                                    for p in range(m):
-                                        lab_m[p, 0] = rm[p, 0] + off0
-                                        lab_m[p, 1] = rm[p, 1] + off1
-                                    mis = edge_misfits(pa, pb, d_i, d_j, lab_m, lm, xy_junction, index_min, index_max, fx, skip_max_steps,
-                                                       cut_tol, members, start, nbr, gpos)
-                                    for e in range(n_sel):
-                                        if mis[e] and k[e] == 1:
-                                            cut[e] = True
-                                            n_cut += 1
-                                if n_changed > 0 or n_cut > 0:
-                                    if n_changed > 0:
-                                        for e in range(n_sel):
-                                            if k[e] != 1:
-                                                delta_all[sel[e], 0] *= k[e]
-                                                delta_all[sel[e], 1] *= k[e]
-                                        stats[S_EDGES_RESTEPPED] += n_changed
-                                    if n_cut > 0:
-                                        stats[S_EDGES_CUT] += n_cut
-                                    n_s = n_sel - n_cut
-                                    s_sel = np.empty(n_s, np.intp)
-                                    s_a = np.empty(n_s, np.intp)
-                                    s_b = np.empty(n_s, np.intp)
-                                    s_d0 = np.empty(n_s, np.int64)
-                                    s_d1 = np.empty(n_s, np.int64)
-                                    c = 0
-                                    for e in range(n_sel):
-                                        if cut[e]:
-                                            keep[sel[e]] = False
-                                            continue
-                                        s_sel[c] = sel[e]
-                                        s_a[c] = pa[e]
-                                        s_b[c] = pb[e]
-                                        s_d0[c] = delta_all[sel[e], 0]
-                                        s_d1[c] = delta_all[sel[e], 1]
-                                        c += 1
-                                    keep_s, _rm, sub_rel, sub_comp = clean_edges_walk(m, s_a, s_b, s_d0, s_d1, 2)
-                                    for e in range(n_s):
-                                        if not keep_s[e]:
-                                            keep[s_sel[e]] = False
-                                    for p in range(m):
-                                        rel[members[p], 0] = sub_rel[p, 0]
-                                        rel[members[p], 1] = sub_rel[p, 1]
-                                    p_order, p_bounds = group_order(sub_comp)
-                                    any_cut = n_cut > 0
-                                    stats[S_COMPONENTS_RESTEPPED] += 1
-                                    for q in range(p_bounds.shape[0] - 1):
-                                        nq = p_bounds[q + 1] - p_bounds[q]
-                                        if any_cut and nq < min_split:
-                                            left[L_SPLIT_SMALL] += nq
-                                            continue
-                                        for h in range(nq):
-                                            j = members[p_order[p_bounds[q] + h]]
-                                            buf[top + h] = j
-                                            component[j] = next_id
-                                        next_id += 1
-                                        w_start[n_w] = top
-                                        w_len[n_w] = nq
-                                        w_rounds[n_w] = rounds
-                                        w_g[n_w] = -1
-                                        w_may[n_w] = False
-                                        n_w += 1
-                                        top += nq
-                                    reason = 99
-                        if reason != 99:
-                            # decision 0123: the best offset judged on its inliers
-                            lim = limit if has_limit else _outlier_limit(r_full, outlier_sigma, max_residual_px)
-                            if retry_limit < lim:
-                                lim = retry_limit
-                            n_inl = 0
-                            for p in range(m):
-                                x = r_full[p]
-                                if math.isfinite(x) and x <= lim:
-                                    n_inl += 1
-                            if n_inl == m or n_inl < min_split:
-                                reason = L_AMBIGUOUS
+                            # decision 0125: the edges re-stepped under the best offset, with decision 0130's cuts
+                            did, n_ch, n_cut, p_order, p_bounds, start, nbr, have_adj = _restep(
+                                members, off0, off1, cut_misfit_edges, rpos, keep, edges_all, delta_all, rel, lines, xy_junction,
+                                index_min, index_max, fx, skip_max_steps, skip_tol, cut_tol, a_all, b_all, start, nbr, have_adj, gpos)
+                            if did:
+                                stats[S_EDGES_RESTEPPED] += n_ch
+                                stats[S_EDGES_CUT] += n_cut
+                                stats[S_COMPONENTS_RESTEPPED] += 1
+                                n_w, top, next_id, dropped = _push(members, p_order, p_bounds, min_split if n_cut > 0 else 0, buf, top,
+                                                                   w_start, w_len, w_rounds, w_g, w_may, n_w, rounds, False, component,
+                                                                   next_id)
+                                left[L_SPLIT_SMALL] += dropped
+                                continue
+                        # decision 0123: the best offset judged on its inliers
+                        lim = limit if has_limit else _outlier_limit(r_full, outlier_sigma, max_residual_px)
+                        if retry_limit < lim:
+                            lim = retry_limit
+                        n_inl = 0
+                        for p in range(m):
+                            x = r_full[p]
+                            if math.isfinite(x) and x <= lim:
+                                n_inl += 1
+                        if n_inl == m or n_inl < min_split:
+                            reason = L_AMBIGUOUS
+                        else:
+                            same, start, nbr, have_adj = _inlier_retry(
+                                members, rm, lm, xm, r_full, lim, off0, off1, xy_junction, blocks, B, index_min, index_max, fx, n_refs,
+                                band_px, min_inside, cap2, R, t, z_min, z_max, noise_floor2, chi2, rms_ratio2, neighbour_noise, keep,
+                                a_all, b_all, start, nbr, have_adj, gpos, stats)
+                            if same:
+                                lim_choice = lim
+                                has_lim_choice = True
                             else:
-                                mi = np.empty(n_inl, np.intp)
-                                ri = np.empty((n_inl, 2), np.int64)
-                                li = np.empty((n_inl, 3))
-                                xi = np.empty((n_inl, 2))
-                                c = 0
-                                for p in range(m):
-                                    x = r_full[p]
-                                    if math.isfinite(x) and x <= lim:
-                                        mi[c] = members[p]
-                                        ri[c, 0] = rm[p, 0]
-                                        ri[c, 1] = rm[p, 1]
-                                        li[c, 0] = lm[p, 0]
-                                        li[c, 1] = lm[p, 1]
-                                        li[c, 2] = lm[p, 2]
-                                        xi[c, 0] = xm[p, 0]
-                                        xi[c, 1] = xm[p, 1]
-                                        c += 1
-                                st2, nf2, ok2, t1, t2, ne2, ob2, _r2, _in2 = offset_choice_b(ri, li, xi, xy_junction, blocks, B, index_min,
-                                                                                          index_max, fx, n_refs, band_px, min_inside, cap2,
-                                                                                          R, t, z_min, z_max)
-                                sub_ok = False
-                                if st2 != 0:
-                                    if st2 >= 2:
-                                        stats[S_OUT_OF_PATTERN] += 1
-                                else:
-                                    stats[S_OUT_OF_DEPTH] += nf2
-                                    if ok2:
-                                        if _is_ambiguous(ne2, t1, t2, noise_floor2, chi2, rms_ratio2):
-                                            if neighbour_noise:
-                                                sigma2 = t1
-                                                if noise_floor2 > sigma2:
-                                                    sigma2 = noise_floor2
-                                                if not (ne2 * (t2 - t1) / sigma2 < chi2):
-                                                    if not have_adj:
-                                                        start, nbr = kept_adjacency(M, a_all, b_all, keep)
-                                                        have_adj = True
-                                                    if _shared_error(mi, ri, li, ob2[0], ob2[1], t1, t2, ne2, xy_junction, index_min, index_max,
-                                                                     fx, start, nbr, gpos, cap2, noise_floor2, chi2, rms_ratio2):
-                                                        stats[S_NOISE_SPLIT] += 1
-                                                        sub_ok = True
-                                        else:
-                                            sub_ok = True
-                                if not sub_ok or ob2[0] != off0 or ob2[1] != off1:
-                                    reason = L_AMBIGUOUS
-                                else:
-                                    lim_choice = lim
-                                    has_lim_choice = True
-            if reason == 99:
-                continue
+                                reason = L_AMBIGUOUS
             if reason == L_AMBIGUOUS:
                 left[L_AMBIGUOUS] += m
                 stats[S_AMBIGUOUS] += 1
@@ -562,18 +510,6 @@ def work_loop(order, bounds, g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, 
             rel[outl[p], 0] = sub_rel[p, 0]
             rel[outl[p], 1] = sub_rel[p, 1]
         p_order, p_bounds = group_order(sub_comp)
-        for q in range(p_bounds.shape[0] - 1):
-            nq = p_bounds[q + 1] - p_bounds[q]
-            for h in range(nq):
-                j = outl[p_order[p_bounds[q] + h]]
-                buf[top + h] = j
-                component[j] = next_id
-            next_id += 1
-            w_start[n_w] = top
-            w_len[n_w] = nq
-            w_rounds[n_w] = rounds + 1
-            w_g[n_w] = -1
-            w_may[n_w] = True
-            n_w += 1
-            top += nq
+        n_w, top, next_id, _d = _push(outl, p_order, p_bounds, 0, buf, top, w_start, w_len, w_rounds, w_g, w_may, n_w, rounds + 1, True,
+                                      component, next_id)
     return stats, left, next_id
