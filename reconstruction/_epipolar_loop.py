@@ -258,8 +258,12 @@ def work_loop(order, bounds, g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, 
     E = edges_all.shape[0]
     stats = np.zeros(N_STATS, np.int64)
     left = np.zeros(6, np.int64)
+    # runtime values, not literals: each helper is compiled once (a literal argument makes numba compile another version)
+    yes = M >= 0
+    no = M < 0
+    zero = 0 * M
     # the kept edges' adjacency, built at first use (labelling._Graph)
-    have_adj = False
+    have_adj = no
     start = np.zeros(1, np.intp)
     nbr = np.zeros(0, np.intp)
     gpos = np.full(M, -1, np.intp)  # _Graph's work space
@@ -314,7 +318,7 @@ def work_loop(order, bounds, g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, 
             # decision 0146: an accepted component's edges re-stepped under its offset (no cuts); if any changed, its labels
             # are taken back and its pieces labelled again
             did, n_ch, n_cut, p_order, p_bounds, start, nbr, have_adj = _restep(
-                members, g_off[g, 0], g_off[g, 1], False, rpos, keep, edges_all, delta_all, rel, lines, xy_junction, index_min,
+                members, g_off[g, 0], g_off[g, 1], no, rpos, keep, edges_all, delta_all, rel, lines, xy_junction, index_min,
                 index_max, fx, skip_max_steps, skip_tol, cut_tol, a_all, b_all, start, nbr, have_adj, gpos)
             if did:
                 stats[S_EDGES_RESTEPPED] += n_ch
@@ -324,8 +328,8 @@ def work_loop(order, bounds, g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, 
                     labels[members[p], 0] = unlabelled
                     labels[members[p], 1] = unlabelled
                     residual[members[p]] = np.nan
-                n_w, top, next_id, _d = _push(members, p_order, p_bounds, 0, buf, top, w_start, w_len, w_rounds, w_g, w_may, n_w,
-                                              rounds, False, component, next_id)
+                n_w, top, next_id, _d = _push(members, p_order, p_bounds, zero, buf, top, w_start, w_len, w_rounds, w_g, w_may, n_w,
+                                              rounds, no, component, next_id)
                 continue
         if written:
             stats[S_OUT_OF_DEPTH] += g_fail[g]
@@ -393,8 +397,8 @@ def work_loop(order, bounds, g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, 
                                 stats[S_EDGES_RESTEPPED] += n_ch
                                 stats[S_EDGES_CUT] += n_cut
                                 stats[S_COMPONENTS_RESTEPPED] += 1
-                                n_w, top, next_id, dropped = _push(members, p_order, p_bounds, min_split if n_cut > 0 else 0, buf, top,
-                                                                   w_start, w_len, w_rounds, w_g, w_may, n_w, rounds, False, component,
+                                n_w, top, next_id, dropped = _push(members, p_order, p_bounds, min_split if n_cut > 0 else zero, buf, top,
+                                                                   w_start, w_len, w_rounds, w_g, w_may, n_w, rounds, no, component,
                                                                    next_id)
                                 left[L_SPLIT_SMALL] += dropped
                                 continue
@@ -510,6 +514,6 @@ def work_loop(order, bounds, g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, 
             rel[outl[p], 0] = sub_rel[p, 0]
             rel[outl[p], 1] = sub_rel[p, 1]
         p_order, p_bounds = group_order(sub_comp)
-        n_w, top, next_id, _d = _push(outl, p_order, p_bounds, 0, buf, top, w_start, w_len, w_rounds, w_g, w_may, n_w, rounds + 1, True,
+        n_w, top, next_id, _d = _push(outl, p_order, p_bounds, zero, buf, top, w_start, w_len, w_rounds, w_g, w_may, n_w, rounds + 1, yes,
                                       component, next_id)
     return stats, left, next_id
