@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from reconstruction import _ambiguity_kernels as _ak
+from reconstruction import _epipolar_loop as _el
 from reconstruction import _label_kernels as _k
 from reconstruction.ambiguity_guard import Guard
 from reconstruction.continuation import continue_lines, crossing_gap_px
@@ -100,6 +101,8 @@ class LabelOptions:
         outliers, and of the rest the connected pieces no larger than that group are labelled again on their own
         (a part joined across a depth edge by a lattice vector that runs nearly along the epipolar lines;
         `residual_clusters`, decision 0108).
+    compiled_loop: the per-component work loop (the choice, re-steps, inlier retry, clusters and splits) in one compiled
+        call (`_epipolar_loop.work_loop`, decision 0161); False: the Python loop it reproduces bit for bit (the reference).
     """
 
     depth_min_mm: float = 100.0
@@ -129,6 +132,7 @@ class LabelOptions:
     cluster_factor: float = 3.0
     cluster_floor_px: float = 0.075
     cluster_min: int = 3
+    compiled_loop: bool = True
 
     def __post_init__(self) -> None:
         # the ambiguity test divides by noise_floor_px² (compiled: a zero would give inf/NaN silently)
@@ -425,6 +429,17 @@ def _outlier_limit(r: np.ndarray, options: LabelOptions) -> float:
     return max(options.outlier_sigma * sigma_hat, options.max_residual_px)
 
 
+# `_epipolar_loop.work_loop`'s counts: (stats key, index), always present / present when not zero (as the Python loop adds them)
+_LOOP_STATS = (("components_labelled", _el.S_LABELLED), ("ambiguous", _el.S_AMBIGUOUS), ("out_of_pattern", _el.S_OUT_OF_PATTERN),
+               ("out_of_depth_range", _el.S_OUT_OF_DEPTH), ("too_small", _el.S_TOO_SMALL), ("components_split", _el.S_SPLIT),
+               ("junctions_residual_clusters", _el.S_CLUSTERS))
+_LOOP_STATS_WHEN_ANY = (("edges_restepped", _el.S_EDGES_RESTEPPED), ("components_restepped", _el.S_COMPONENTS_RESTEPPED),
+                        ("components_restepped_accepted", _el.S_RESTEPPED_ACCEPTED), ("ambiguity_noise_split", _el.S_NOISE_SPLIT),
+                        ("edges_cut", _el.S_EDGES_CUT))
+assert LEFT_OUT_REASONS == ("ambiguous", "no_admissible_offset", "component_too_small", "residual_too_large", "out_of_depth_range",
+                            "split_too_small")  # _epipolar_loop's L_* order
+
+
 def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *, options: LabelOptions = LabelOptions()) -> Labels:
     """The default labeller: one offset per connected component, split at outliers (module doc).
 
@@ -552,8 +567,33 @@ def label_epipolar(obs: GridObservation, model: RigModel, xy_cam: np.ndarray, *,
         rel[members] = sub_rel
         return [members[p] for p in _groups(sub_comp)], bool(cut.any())
 
-    # Work list: (members, split round, first-round group or −1, edges may be re-stepped). Pieces split off are
-    # relabelled on their own.
+    if options.compiled_loop:
+        # the work loop below in one compiled call (decision 0161): the same steps, kernels and outputs
+        st, lf, next_id = _el.work_loop(
+            order, bounds, g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, g_limit, g_r, g_in, g_written, g_bad, g_nbad,
+            lone_rejected if lone_rejected is not None else np.zeros(0, np.bool_), lone_rejected is not None, rel, lines,
+            np.ascontiguousarray(xy_cam, np.float64), model.xy_junction, _junction_blocks(model.xy_junction), _k._BLOCK,
+            int(model.index_min), int(model.index_max), float(model.fx_proj), int(options.candidate_refs),
+            float(options.candidate_band_px), float(options.min_inside_fraction), float(options.residual_cap_px**2),
+            model.procam.R_proj_cam, model.procam.t_proj_cam, float(options.depth_min_mm), float(options.depth_max_mm), keep,
+            np.ascontiguousarray(edges_all), delta_all.copy(), e_arrays[0], e_arrays[1], labels, residual, amb_best, amb_all,
+            component, next_id, float(skip_tol), float(retry_limit), int(options.min_component), int(options.min_split_component),
+            int(options.max_split_rounds), float(options.outlier_sigma), float(options.max_residual_px), float(options.noise_floor_px**2),
+            float(options.ambiguity_chi2), float(options.min_rms_ratio**2), bool(options.neighbour_noise), bool(options.skip_edges_accepted),
+            bool(options.cut_misfit_edges), int(options.skip_max_steps), float(options.skip_tol_sigma), bool(options.residual_clusters),
+            float(options.cluster_factor), float(options.cluster_floor_px), int(options.cluster_min), int(UNLABELLED))
+        for key, k in _LOOP_STATS:
+            stats[key] += int(st[k])
+        for key, k in _LOOP_STATS_WHEN_ANY:
+            if st[k] > 0:
+                stats[key] = int(st[k])
+        for k, reason in enumerate(LEFT_OUT_REASONS):
+            left[reason] += int(lf[k])
+        stats["junctions_left_out"] = left
+        return Labels(labels, residual, component, stats, amb_best, amb_all)
+
+    # The reference (LabelOptions.compiled_loop=False). Work list: (members, split round, first-round group or −1, edges may
+    # be re-stepped). Pieces split off are relabelled on their own.
     work = [(order[bounds[g] : bounds[g + 1]], 0, g, True) for g in range(len(bounds) - 1)]
     while work:
         members, rounds, g, may_restep = work.pop()
