@@ -1294,6 +1294,119 @@ def _fits_of_groups(grp, X, Y, NX, NY, na, G, sx, sy):
 
 
 @njit
+def _fit_run(X, Y, lo, n):
+    """`line_fit_xy` of one group whose points are X[lo : lo + n], Y[...] (the same operations in the same order):
+    centroid (x, y), unit direction (x, y), RMS distance."""
+    mx = 0.0
+    my = 0.0
+    for k in range(lo, lo + n):
+        mx += X[k]
+        my += Y[k]
+    s = np.float64(max(n, 1))
+    mx /= s
+    my /= s
+    sxx = 0.0
+    syy = 0.0
+    sxy = 0.0
+    for k in range(lo, lo + n):
+        dx = X[k] - mx
+        dy = Y[k] - my
+        sxx += dx * dx
+        syy += dy * dy
+        sxy += dx * dy
+    a = sxx / s
+    b = syy / s
+    c = sxy / s
+    theta = 0.5 * math.atan2(2 * c, a - b)
+    h = 0.5 * (a - b)
+    disc = math.sqrt(h * h + c * c)
+    return mx, my, math.cos(theta), math.sin(theta), math.sqrt(max(0.5 * (a + b) - disc, 0.0))
+
+
+@njit
+def _fits_of_runs(start, X, Y, NX, NY, G, sx, sy):
+    """`_fits_of_groups` on samples already ordered by group: group g's points are X[start[g] : start[g + 1]], ...
+    (float64; each group's in the order `_fits_of_groups` would read them; the inliers are compacted in place).
+    Each group's sums run in registers, in that order, so every output is `_fits_of_groups`' (decision 0162).
+    Groups without samples get the fit of an empty group, computed once (by the same code)."""
+    cen = np.empty((G, 2))
+    dr = np.empty((G, 2))
+    rms = np.empty(G)
+    cnt = np.empty(G, np.int64)
+    n_neg = np.empty(G)
+    n_pos = np.empty(G)
+    m_neg = np.empty(G)
+    m_pos = np.empty(G)
+    mean_sin = np.empty(G)
+    e_done = False
+    e0 = e1 = e2 = e3 = e4 = 0.0
+    for g in range(G):
+        lo = start[g]
+        n = start[g + 1] - lo
+        if n == 0:
+            if not e_done:  # every empty group's fit is the same: computed once, by the same code
+                e0, e1, e2, e3, e4 = _fit_run(X, Y, lo, 0)
+                e_done = True
+            cen[g, 0] = e0
+            cen[g, 1] = e1
+            dr[g, 0] = e2
+            dr[g, 1] = e3
+            rms[g] = e4
+            cnt[g] = 0
+            n_neg[g] = 0.0
+            n_pos[g] = 0.0
+            m_neg[g] = 0.0 / 1.0
+            m_pos[g] = 0.0 / 1.0
+            mean_sin[g] = 0.0 / 1
+            continue
+        c0, c1, d0, d1, r = _fit_run(X, Y, lo, n)
+        tol = max(1.0, 3 * r)
+        m = lo  # inliers, compacted in place (order kept)
+        for k in range(lo, lo + n):
+            off = abs((X[k] - c0) * d1 - (Y[k] - c1) * d0)
+            if off <= tol:
+                X[m] = X[k]
+                Y[m] = Y[k]
+                NX[m] = NX[k]
+                NY[m] = NY[k]
+                m += 1
+        m -= lo
+        c0, c1, d0, d1, r = _fit_run(X, Y, lo, m)
+        c = g // 2
+        cxs = sx[c]
+        cys = sy[c]
+        nn = 0.0
+        np_ = 0.0
+        sn = 0.0
+        sp = 0.0
+        ss = 0.0
+        for k in range(lo, lo + m):
+            bx = X[k]
+            by = Y[k]
+            s = (bx - cxs) * d0 + (by - cys) * d1
+            off = (bx - c0) * d1 - (by - c1) * d0
+            neg = s < -0.5
+            pos = s > 0.5
+            nn += 1.0 if neg else 0.0
+            sn += off if neg else 0.0
+            np_ += 1.0 if pos else 0.0
+            sp += off if pos else 0.0
+            ss += abs(NX[k] * d0 + NY[k] * d1)
+        cen[g, 0] = c0
+        cen[g, 1] = c1
+        dr[g, 0] = d0
+        dr[g, 1] = d1
+        rms[g] = r
+        cnt[g] = m
+        n_neg[g] = nn
+        n_pos[g] = np_
+        m_neg[g] = sn / max(nn, 1.0)
+        m_pos[g] = sp / max(np_, 1.0)
+        mean_sin[g] = ss / max(m, 1)
+    return cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin
+
+
+@njit
 def trim_free_ends(seg_out, sidx, sg, sproj, smin, smax, seg_seed, sample_junction, d_trim):
     """Samples within d_trim (px) of a segment end that reaches no crossing leave their segment
     (seg_out set to −1 in place, unless a junction holds them); returns how many are that close."""
@@ -1962,7 +2075,14 @@ def shared_arm_fits(fits, core, row_start, u, fam, qx, qy, nx, ny, sx, sy, R32):
                     NX[na] = np.float64(nx[t])
                     NY[na] = np.float64(ny[t])
                     na += 1
-    c2, d2, r2, n2, neg2, pos2, mn2, mp2, ms2 = _fits_of_groups(grp, X, Y, NX, NY, na, G, sx, sy)
+    # the samples were collected group by group (g rising), each group's in `_fits_of_groups`' order: its runs
+    # (decision 0162; the same outputs, and no fit of the groups without samples but one)
+    start = np.zeros(G + 1, np.int64)
+    for k in range(na):
+        start[grp[k] + 1] += 1
+    for g in range(G):
+        start[g + 1] += start[g]
+    c2, d2, r2, n2, neg2, pos2, mn2, mp2, ms2 = _fits_of_runs(start, X, Y, NX, NY, G, sx, sy)
     done = np.zeros(ns, np.bool_)
     for g in range(G):
         if want[g] and n2[g] > cnt[g]:
