@@ -1100,6 +1100,50 @@ def line_fit_xy(groups, X, Y, n, n_groups):
 
 
 @njit
+def _line_fit_xy_redo(groups, X, Y, n, n_groups, redo, cen, dr, rms, num):
+    """`line_fit_xy` of the groups with redo[g], written into its outputs (cen, dr, rms, num) in place; the other
+    groups' rows are left as they are. Each group's sums run over its own points in input order, so a group's
+    fit does not depend on the others'."""
+    cnt = np.zeros(n_groups, np.int64)
+    mx = np.zeros(n_groups)
+    my = np.zeros(n_groups)
+    for k in range(n):
+        g = groups[k]
+        cnt[g] += 1
+        mx[g] += X[k]
+        my[g] += Y[k]
+    for g in range(n_groups):
+        s = np.float64(max(cnt[g], 1))
+        mx[g] /= s
+        my[g] /= s
+    sxx = np.zeros(n_groups)
+    syy = np.zeros(n_groups)
+    sxy = np.zeros(n_groups)
+    for k in range(n):
+        g = groups[k]
+        dx = X[k] - mx[g]
+        dy = Y[k] - my[g]
+        sxx[g] += dx * dx
+        syy[g] += dy * dy
+        sxy[g] += dx * dy
+    for g in range(n_groups):
+        if not redo[g]:
+            continue
+        s = np.float64(max(cnt[g], 1))
+        a = sxx[g] / s
+        b = syy[g] / s
+        c = sxy[g] / s
+        theta = 0.5 * math.atan2(2 * c, a - b)
+        dr[g, 0] = math.cos(theta)
+        dr[g, 1] = math.sin(theta)
+        h = 0.5 * (a - b)
+        disc = math.sqrt(h * h + c * c)
+        rms[g] = math.sqrt(max(0.5 * (a + b) - disc, 0.0))
+        cen[g, 0] = mx[g]
+        cen[g, 1] = my[g]
+        num[g] = cnt[g]
+
+@njit
 def line_fit(groups, idx, qx, qy, n_groups):
     """`line_fit_xy` of the points (qx[idx[k]], qy[idx[k]]) (float32, taken as float64)."""
     N = len(groups)
@@ -1264,6 +1308,7 @@ def _fits_of_groups(grp, X, Y, NX, NY, na, G, sx, sy):
     (sx, sy). Same outputs as `junction_fits`."""
     cen, dr, rms, cnt = line_fit_xy(grp, X, Y, na, G)
     m = 0  # inliers, compacted in place (order kept)
+    redo = np.zeros(G, np.bool_)  # groups that lost a sample
     for k in range(na):
         g = grp[k]
         off = abs((X[k] - cen[g, 0]) * dr[g, 1] - (Y[k] - cen[g, 1]) * dr[g, 0])
@@ -1274,7 +1319,10 @@ def _fits_of_groups(grp, X, Y, NX, NY, na, G, sx, sy):
             NX[m] = NX[k]
             NY[m] = NY[k]
             m += 1
-    cen, dr, rms, cnt = line_fit_xy(grp, X, Y, m, G)
+        else:
+            redo[g] = True
+    # a group that lost no sample has the same points in the same order: its fit is the first (decision 0162)
+    _line_fit_xy_redo(grp, X, Y, m, G, redo, cen, dr, rms, cnt)
     n_neg = np.zeros(G)
     n_pos = np.zeros(G)
     s_neg = np.zeros(G)
