@@ -1109,10 +1109,14 @@ def _line_fit_xy_redo(groups, X, Y, n, n_groups, redo, cen, dr, rms, num):
     my = np.zeros(n_groups)
     for k in range(n):
         g = groups[k]
+        if not redo[g]:  # (few groups lose a sample)
+            continue
         cnt[g] += 1
         mx[g] += X[k]
         my[g] += Y[k]
     for g in range(n_groups):
+        if not redo[g]:
+            continue
         s = np.float64(max(cnt[g], 1))
         mx[g] /= s
         my[g] /= s
@@ -1121,6 +1125,8 @@ def _line_fit_xy_redo(groups, X, Y, n, n_groups, redo, cen, dr, rms, num):
     sxy = np.zeros(n_groups)
     for k in range(n):
         g = groups[k]
+        if not redo[g]:
+            continue
         dx = X[k] - mx[g]
         dy = Y[k] - my[g]
         sxx[g] += dx * dx
@@ -1322,7 +1328,8 @@ def _fits_of_groups(grp, X, Y, NX, NY, na, G, sx, sy):
         else:
             redo[g] = True
     # a group that lost no sample has the same points in the same order: its fit is the first (decision 0162)
-    _line_fit_xy_redo(grp, X, Y, m, G, redo, cen, dr, rms, cnt)
+    if m < na:
+        _line_fit_xy_redo(grp, X, Y, m, G, redo, cen, dr, rms, cnt)
     n_neg = np.zeros(G)
     n_pos = np.zeros(G)
     s_neg = np.zeros(G)
