@@ -702,15 +702,20 @@ def albedo_and_families(u, v, ox, oy, nx, ny, st, xu, xv, xs, Hw, Ww, min_rel, c
     ofam = np.empty(n, np.int8)
     qx = np.empty(n, np.float32)
     qy = np.empty(n, np.float32)
+    # the direction grid's cell of every sample first, in a loop without branches (vector code; the same
+    # operations, decision 0162)
+    jd = np.empty(n, np.int64)
+    for k in range(n):
+        cd = int((u[k] + np.float64(ox[k])) / cell_d + 0.5)
+        rd = int((v[k] + np.float64(oy[k])) / cell_d + 0.5)
+        cd = min(max(cd, 0), gw_d - 1)
+        rd = min(max(rd, 0), gh_d - 1)
+        jd[k] = rd * gw_d + cd
     m = 0
     for k in range(n):
         uk = u[k]
         vk = v[k]
-        cd = int((uk + np.float64(ox[k])) / cell_d + 0.5)
-        rd = int((vk + np.float64(oy[k])) / cell_d + 0.5)
-        cd = min(max(cd, 0), gw_d - 1)
-        rd = min(max(rd, 0), gh_d - 1)
-        j = rd * gw_d + cd
+        j = jd[k]
         c1 = abs(dir4[j, 1] * nx[k] - dir4[j, 0] * ny[k])
         c2 = abs(dir4[j, 3] * nx[k] - dir4[j, 2] * ny[k])
         keep = (st[k] >= min_rel * local[vk >> 4, uk >> 4]) & (abs(c1 - c2) >= margin)
@@ -963,6 +968,14 @@ def link_segments(u, v, core, qx, qy, nx, ny, fam, Hw, Ww):
     win = np.full(_RING * Wp, -1, np.int32)
     filled = -1  # rows up to this one are in the window
     nxt = 0  # next sample to put into the window
+    # every sample's slope along its dominant axis first, in a loop without branches (vector code; the same
+    # float32 divisions, decision 0162)
+    slopes = np.empty(P, np.float32)
+    for a in range(P):
+        tx = -ny[a]
+        ty = nx[a]
+        xd = abs(tx) >= abs(ty)
+        slopes[a] = (ty if xd else tx) / (tx if xd else ty)
     for a in range(P):
         if core[a]:
             continue
@@ -975,10 +988,8 @@ def link_segments(u, v, core, qx, qy, nx, ny, fam, Hw, Ww):
                 if not core[nxt]:
                     win[base_r + u[nxt] + 2] = nxt
                 nxt += 1
-        tx = -ny[a]
-        ty = nx[a]
-        xdom = abs(tx) >= abs(ty)
-        slope = ty / tx if xdom else tx / ty
+        xdom = abs(ny[a]) >= abs(nx[a])  # |tx| ≥ |ty|, the tangent (tx, ty) = (−ny, nx)
+        slope = slopes[a]
         if not np.isfinite(slope):
             continue
         ra = -1  # a's root: found at its first link, then kept up to date by its unions (decision 0091)
@@ -1087,6 +1098,56 @@ def line_fit_xy(groups, X, Y, n, n_groups):
         cen[g, 1] = my[g]
     return cen, dr, rms, num
 
+
+@njit
+def _line_fit_xy_redo(groups, X, Y, n, n_groups, redo, cen, dr, rms, num):
+    """`line_fit_xy` of the groups with redo[g], written into its outputs (cen, dr, rms, num) in place; the other
+    groups' rows are left as they are. Each group's sums run over its own points in input order, so a group's
+    fit does not depend on the others'."""
+    cnt = np.zeros(n_groups, np.int64)
+    mx = np.zeros(n_groups)
+    my = np.zeros(n_groups)
+    for k in range(n):
+        g = groups[k]
+        if not redo[g]:  # (few groups lose a sample)
+            continue
+        cnt[g] += 1
+        mx[g] += X[k]
+        my[g] += Y[k]
+    for g in range(n_groups):
+        if not redo[g]:
+            continue
+        s = np.float64(max(cnt[g], 1))
+        mx[g] /= s
+        my[g] /= s
+    sxx = np.zeros(n_groups)
+    syy = np.zeros(n_groups)
+    sxy = np.zeros(n_groups)
+    for k in range(n):
+        g = groups[k]
+        if not redo[g]:
+            continue
+        dx = X[k] - mx[g]
+        dy = Y[k] - my[g]
+        sxx[g] += dx * dx
+        syy[g] += dy * dy
+        sxy[g] += dx * dy
+    for g in range(n_groups):
+        if not redo[g]:
+            continue
+        s = np.float64(max(cnt[g], 1))
+        a = sxx[g] / s
+        b = syy[g] / s
+        c = sxy[g] / s
+        theta = 0.5 * math.atan2(2 * c, a - b)
+        dr[g, 0] = math.cos(theta)
+        dr[g, 1] = math.sin(theta)
+        h = 0.5 * (a - b)
+        disc = math.sqrt(h * h + c * c)
+        rms[g] = math.sqrt(max(0.5 * (a + b) - disc, 0.0))
+        cen[g, 0] = mx[g]
+        cen[g, 1] = my[g]
+        num[g] = cnt[g]
 
 @njit
 def line_fit(groups, idx, qx, qy, n_groups):
@@ -1253,6 +1314,7 @@ def _fits_of_groups(grp, X, Y, NX, NY, na, G, sx, sy):
     (sx, sy). Same outputs as `junction_fits`."""
     cen, dr, rms, cnt = line_fit_xy(grp, X, Y, na, G)
     m = 0  # inliers, compacted in place (order kept)
+    redo = np.zeros(G, np.bool_)  # groups that lost a sample
     for k in range(na):
         g = grp[k]
         off = abs((X[k] - cen[g, 0]) * dr[g, 1] - (Y[k] - cen[g, 1]) * dr[g, 0])
@@ -1263,7 +1325,11 @@ def _fits_of_groups(grp, X, Y, NX, NY, na, G, sx, sy):
             NX[m] = NX[k]
             NY[m] = NY[k]
             m += 1
-    cen, dr, rms, cnt = line_fit_xy(grp, X, Y, m, G)
+        else:
+            redo[g] = True
+    # a group that lost no sample has the same points in the same order: its fit is the first (decision 0162)
+    if m < na:
+        _line_fit_xy_redo(grp, X, Y, m, G, redo, cen, dr, rms, cnt)
     n_neg = np.zeros(G)
     n_pos = np.zeros(G)
     s_neg = np.zeros(G)
@@ -1290,6 +1356,119 @@ def _fits_of_groups(grp, X, Y, NX, NY, na, G, sx, sy):
         m_neg[g] = s_neg[g] / max(n_neg[g], 1.0)
         m_pos[g] = s_pos[g] / max(n_pos[g], 1.0)
         mean_sin[g] = s_sin[g] / max(cnt[g], 1)
+    return cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin
+
+
+@njit
+def _fit_run(X, Y, lo, n):
+    """`line_fit_xy` of one group whose points are X[lo : lo + n], Y[...] (the same operations in the same order):
+    centroid (x, y), unit direction (x, y), RMS distance."""
+    mx = 0.0
+    my = 0.0
+    for k in range(lo, lo + n):
+        mx += X[k]
+        my += Y[k]
+    s = np.float64(max(n, 1))
+    mx /= s
+    my /= s
+    sxx = 0.0
+    syy = 0.0
+    sxy = 0.0
+    for k in range(lo, lo + n):
+        dx = X[k] - mx
+        dy = Y[k] - my
+        sxx += dx * dx
+        syy += dy * dy
+        sxy += dx * dy
+    a = sxx / s
+    b = syy / s
+    c = sxy / s
+    theta = 0.5 * math.atan2(2 * c, a - b)
+    h = 0.5 * (a - b)
+    disc = math.sqrt(h * h + c * c)
+    return mx, my, math.cos(theta), math.sin(theta), math.sqrt(max(0.5 * (a + b) - disc, 0.0))
+
+
+@njit
+def _fits_of_runs(start, X, Y, NX, NY, G, sx, sy):
+    """`_fits_of_groups` on samples already ordered by group: group g's points are X[start[g] : start[g + 1]], ...
+    (float64; each group's in the order `_fits_of_groups` would read them; the inliers are compacted in place).
+    Each group's sums run in registers, in that order, so every output is `_fits_of_groups`' (decision 0162).
+    Groups without samples get the fit of an empty group, computed once (by the same code)."""
+    cen = np.empty((G, 2))
+    dr = np.empty((G, 2))
+    rms = np.empty(G)
+    cnt = np.empty(G, np.int64)
+    n_neg = np.empty(G)
+    n_pos = np.empty(G)
+    m_neg = np.empty(G)
+    m_pos = np.empty(G)
+    mean_sin = np.empty(G)
+    e_done = False
+    e0 = e1 = e2 = e3 = e4 = 0.0
+    for g in range(G):
+        lo = start[g]
+        n = start[g + 1] - lo
+        if n == 0:
+            if not e_done:  # every empty group's fit is the same: computed once, by the same code
+                e0, e1, e2, e3, e4 = _fit_run(X, Y, lo, 0)
+                e_done = True
+            cen[g, 0] = e0
+            cen[g, 1] = e1
+            dr[g, 0] = e2
+            dr[g, 1] = e3
+            rms[g] = e4
+            cnt[g] = 0
+            n_neg[g] = 0.0
+            n_pos[g] = 0.0
+            m_neg[g] = 0.0 / 1.0
+            m_pos[g] = 0.0 / 1.0
+            mean_sin[g] = 0.0 / 1
+            continue
+        c0, c1, d0, d1, r = _fit_run(X, Y, lo, n)
+        tol = max(1.0, 3 * r)
+        m = lo  # inliers, compacted in place (order kept)
+        for k in range(lo, lo + n):
+            off = abs((X[k] - c0) * d1 - (Y[k] - c1) * d0)
+            if off <= tol:
+                X[m] = X[k]
+                Y[m] = Y[k]
+                NX[m] = NX[k]
+                NY[m] = NY[k]
+                m += 1
+        m -= lo
+        c0, c1, d0, d1, r = _fit_run(X, Y, lo, m)
+        c = g // 2
+        cxs = sx[c]
+        cys = sy[c]
+        nn = 0.0
+        np_ = 0.0
+        sn = 0.0
+        sp = 0.0
+        ss = 0.0
+        for k in range(lo, lo + m):
+            bx = X[k]
+            by = Y[k]
+            s = (bx - cxs) * d0 + (by - cys) * d1
+            off = (bx - c0) * d1 - (by - c1) * d0
+            neg = s < -0.5
+            pos = s > 0.5
+            nn += 1.0 if neg else 0.0
+            sn += off if neg else 0.0
+            np_ += 1.0 if pos else 0.0
+            sp += off if pos else 0.0
+            ss += abs(NX[k] * d0 + NY[k] * d1)
+        cen[g, 0] = c0
+        cen[g, 1] = c1
+        dr[g, 0] = d0
+        dr[g, 1] = d1
+        rms[g] = r
+        cnt[g] = m
+        n_neg[g] = nn
+        n_pos[g] = np_
+        m_neg[g] = sn / max(nn, 1.0)
+        m_pos[g] = sp / max(np_, 1.0)
+        mean_sin[g] = ss / max(m, 1)
     return cen, dr, rms, cnt, n_neg, n_pos, m_neg, m_pos, mean_sin
 
 
@@ -1962,7 +2141,14 @@ def shared_arm_fits(fits, core, row_start, u, fam, qx, qy, nx, ny, sx, sy, R32):
                     NX[na] = np.float64(nx[t])
                     NY[na] = np.float64(ny[t])
                     na += 1
-    c2, d2, r2, n2, neg2, pos2, mn2, mp2, ms2 = _fits_of_groups(grp, X, Y, NX, NY, na, G, sx, sy)
+    # the samples were collected group by group (g rising), each group's in `_fits_of_groups`' order: its runs
+    # (decision 0162; the same outputs, and no fit of the groups without samples but one)
+    start = np.zeros(G + 1, np.int64)
+    for k in range(na):
+        start[grp[k] + 1] += 1
+    for g in range(G):
+        start[g + 1] += start[g]
+    c2, d2, r2, n2, neg2, pos2, mn2, mp2, ms2 = _fits_of_runs(start, X, Y, NX, NY, G, sx, sy)
     done = np.zeros(ns, np.bool_)
     for g in range(G):
         if want[g] and n2[g] > cnt[g]:
