@@ -194,18 +194,29 @@ def _k_stretches_meet(xy, a, b, f, R, t, z0, z1, Kp, dist, has_dist, cu, cv, nn,
 def _fractional_k_from(c, offs, index_min, h):
     """`_fractional_k` for offs strictly increasing, its segment found by a walk from segment h (the previous
     sample's: a piece's samples lie close together) instead of the bisection: (the same value, bit for bit, and the
-    segment for the next call). With strictly increasing offs the bisection's segment is the one lo <= L − 2 with
-    offs[lo] <= c and (lo = L − 2 or c < offs[lo + 1]): unique, so the walk finds the same one (decision 0163)."""
+    segment for the next call; h < 0: no segment yet, found by the bisection). With strictly increasing offs the
+    bisection's segment is the one lo <= L − 2 with offs[lo] <= c and (lo = L − 2 or c < offs[lo + 1]): unique, so
+    the walk finds the same one (decision 0163)."""
     L = offs.shape[0]
     if c < offs[0]:
         return index_min + (c - offs[0]) / (offs[1] - offs[0]), h
     if c > offs[L - 1]:
         return index_min + L - 1 + (c - offs[L - 1]) / (offs[L - 1] - offs[L - 2]), h
-    lo = min(max(h, 0), L - 2)
-    while lo > 0 and offs[lo] > c:
-        lo -= 1
-    while lo < L - 2 and offs[lo + 1] <= c:
-        lo += 1
+    if h < 0:  # no segment yet (a piece's first sample): `_fractional_k`'s bisection
+        lo = 0
+        hi = L - 1
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if offs[mid] <= c:
+                lo = mid
+            else:
+                hi = mid
+    else:
+        lo = min(h, L - 2)
+        while lo > 0 and offs[lo] > c:
+            lo -= 1
+        while lo < L - 2 and offs[lo + 1] <= c:
+            lo += 1
     d = offs[lo + 1] - offs[lo]
     return index_min + lo + ((c - offs[lo]) / d if d > 0 else 0.0), lo
 
@@ -239,8 +250,8 @@ def _k_stretches_meet_walk(xy, a, b, f, R, t, z0, z1, Kp, dist, has_dist, cu, cv
     (lo, hi) bit for bit; ~half the time on the bench rigs (decision 0163)."""
     lo = -np.inf
     hi = np.inf
-    h0 = 0
-    h1 = 0
+    h0 = -1  # each depth's segment of the previous sample (−1: none yet, found by bisection)
+    h1 = -1
     for s in range(a, b):
         x = xy[s, 0]
         y = xy[s, 1]
