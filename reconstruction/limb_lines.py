@@ -620,6 +620,7 @@ def _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_sa
     amb_of = np.empty(n_live, np.bool_)
     log_s = np.empty(256, np.intp)  # the samples written and their junctions before: undone when not ok
     log_j = np.empty(256, seed_jid.dtype)
+    log_x = np.empty(256, np.intp)  # their trace positions (the end pass's pieces this step labelled, decision 0163)
     n_log = 0
     n_pieces = 0
     n_samples = 0
@@ -665,14 +666,18 @@ def _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_sa
             size = 2 * (n_log + pos.shape[0])
             grown_s = np.empty(size, np.intp)
             grown_j = np.empty(size, seed_jid.dtype)
+            grown_x = np.empty(size, np.intp)
             grown_s[:n_log] = log_s[:n_log]
             grown_j[:n_log] = log_j[:n_log]
+            grown_x[:n_log] = log_x[:n_log]
             log_s = grown_s
             log_j = grown_j
+            log_x = grown_x
         for w in range(pos.shape[0]):  # the undo log: every sample an accepted piece may write
             s = sid[pos[w]]
             log_s[n_log] = s
             log_j[n_log] = seed_jid[s]
+            log_x[n_log] = pos[w]
             n_log += 1
         npc, nsm = _k_write(pos, owner, zs, z_lo, z_hi, k_of, cand, nb, end_pos, n_p, ts, sid, trim_px, index, seed_jid, labelled, val, q,
                             dirty, x0, y0, cell, gw, gh)
@@ -684,7 +689,10 @@ def _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, anchor, min_sa
         for i in range(n_log - 1, -1, -1):
             index[log_s[i]] = np.nan
             seed_jid[log_s[i]] = log_j[i]
-    return ok, n_pieces, n_samples, n_amb, left
+    # with ok: end_pos, labelled and val are `_k_pieces` of the labels now (_k_write keeps labelled and val), and every
+    # sample whose index the rounds changed is at one of the logged positions (what the undo above relies on):
+    # `_k_end_rows_after` needs no pass over every trace position (decision 0163)
+    return ok, n_pieces, n_samples, n_amb, left, end_pos, labelled, val, log_x[:n_log]
 
 
 @njit
@@ -703,6 +711,31 @@ def _k_end_rows(q, fam, sid, piece, tangent, index, was_unlabelled, n_p, anchor,
         s = sid[x]
         if was_unlabelled[s] and math.isfinite(index[s]):
             mine[piece[x]] = True
+    return _k_end_rows_of(q, fam, sid, piece, tangent, index, mine, end_pos, labelled, val, n_p, anchor, reach, lateral, x0, y0, cell,
+                          gw, gh, start, items, pos_of)
+
+
+@njit
+def _k_end_rows_after(q, fam, sid, piece, tangent, index, was_unlabelled, n_p, anchor, reach, lateral, x0, y0, cell, gw, gh, start, items,
+                      pos_of, end_pos, labelled, val, log_x):
+    """`_k_end_rows` right after `_k_all` (ok), from what it returns: its end_pos, labelled and val (the same as
+    `_k_pieces` now), and the pieces this step labelled from its logged positions log_x alone (a sample outside them
+    kept its label, so it has no label now that it lacked before). The same result; no pass over every trace
+    position (decision 0163)."""
+    mine = np.zeros(n_p, np.bool_)
+    for i in range(log_x.shape[0]):
+        x = log_x[i]
+        s = sid[x]
+        if was_unlabelled[s] and math.isfinite(index[s]):
+            mine[piece[x]] = True
+    return _k_end_rows_of(q, fam, sid, piece, tangent, index, mine, end_pos, labelled, val, n_p, anchor, reach, lateral, x0, y0, cell,
+                          gw, gh, start, items, pos_of)
+
+
+@njit
+def _k_end_rows_of(q, fam, sid, piece, tangent, index, mine, end_pos, labelled, val, n_p, anchor, reach, lateral, x0, y0, cell, gw, gh,
+                   start, items, pos_of):
+    """`_k_end_rows`' rows for the pieces mine (n_p,) bool, the pieces' table (end_pos, labelled, val) given."""
     ends = np.empty((2 * n_p, 3), np.intp)
     rq = np.empty((4 * n_p, 2))
     rf = np.empty(4 * n_p, np.intp)
@@ -774,7 +807,7 @@ def _k_write_ends(ends, keep, end_pos, n_p, sid, index, seed_jid, val, q, anchor
 
 
 def _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, *, model, depth_range_mm, grid, reach_px, lateral_px, tol_px,
-                anchor) -> int:
+                anchor, after=None) -> int:
     """Decision 0106: the trimmed ends of the pieces this step labelled that face an unlabelled piece of their
     line (`_k_end_rows`) take the piece's line where the line continues across the crossing on the piece's
     sheet: the gap's middle lies within tol_px of a line m of the other family and the facing sample in the
@@ -783,8 +816,13 @@ def _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, *,
     lateral_px (`_k_write_ends`). Returns the samples written."""
     n_p = int(piece[-1]) + 1
     x0, y0, cell, gw, gh, start, items, pos_of = grid
-    ends, rq, rf, rk, end_pos, val = _k_end_rows(q, fam, sid, piece, tangent, index, was_unlabelled, n_p, int(anchor), float(reach_px),
-                                                 float(lateral_px), x0, y0, cell, gw, gh, start, items, pos_of)
+    if after is None:
+        ends, rq, rf, rk, end_pos, val = _k_end_rows(q, fam, sid, piece, tangent, index, was_unlabelled, n_p, int(anchor), float(reach_px),
+                                                     float(lateral_px), x0, y0, cell, gw, gh, start, items, pos_of)
+    else:  # `_k_all`'s (end_pos, labelled, val, logged positions): the same rows (decision 0163)
+        ends, rq, rf, rk, end_pos, val = _k_end_rows_after(q, fam, sid, piece, tangent, index, was_unlabelled, n_p, int(anchor),
+                                                           float(reach_px), float(lateral_px), x0, y0, cell, gw, gh, start, items, pos_of,
+                                                           *after)
     if len(ends) == 0:
         return 0
     _, z, m, res = model.sheet_check(rq, rf, rk)
@@ -820,6 +858,7 @@ def label_beside_lines(
     anchor: int = 3,
     rounds: int = 8,
     ends: bool = True,
+    end_rows_from_rounds: bool = True,
 ) -> dict:
     """Label unlabelled pieces beside a labelled line of their family whose two crossings confirm the line on
     its own light sheet (module doc).
@@ -836,7 +875,9 @@ def label_beside_lines(
     (each round's labels are the next round's neighbours). Returns counts: pieces and samples labelled, pieces
     left out as ambiguous, and the first round's pieces left out by reason (`left_out`: no facing piece, no
     crossing in a gap, no neighbour line, no labelled neighbour line; the crossings are looked for only beside a
-    labelled neighbour line)."""
+    labelled neighbour line). end_rows_from_rounds: decision 0106's end pass takes the pieces' table and the pieces
+    this step labelled from the compiled rounds (`_k_end_rows_after`; the same result, decision 0163); False: it
+    walks every trace position again (`_k_end_rows`)."""
     stats = {"pieces": 0, "samples": 0, "ambiguous": 0}
     n = len(piece)
     if n == 0:
@@ -849,7 +890,7 @@ def label_beside_lines(
     fixed = model._sheet_check_args
     was_unlabelled = np.isnan(index)
     if fixed is not None:
-        ok, n_pieces, n_samples, n_amb, left = _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, int(anchor), int(min_samples),
+        ok, n_pieces, n_samples, n_amb, left, *after = _k_all(q, fam, sid, piece, ts, tangent, index, seed_jid, n_p, int(anchor), int(min_samples),
                                                       float(reach_px), float(lateral_px), float(mix_sigma * sigma_px), float(across_px),
                                                       float(tol_px), float(margin), z_lo, z_hi, float(trim_px), int(rounds),
                                                       x0, y0, cell, gw, gh, start, items, pos_of, *fixed)
@@ -860,7 +901,8 @@ def label_beside_lines(
             stats["left_out"] = dict(zip(("no_facing_piece", "no_crossing", "no_neighbour", "neighbour_unlabelled"), (int(c) for c in left)))
             _after_rounds(stats, q, fam, sid, piece, ts, tangent, index, seed_jid, was_unlabelled, model=model, depth_range_mm=depth_range_mm,
                           grid=grid, sigma_px=sigma_px, reach_px=reach_px, across_px=across_px, mix_sigma=mix_sigma, trim_px=trim_px,
-                          tol_px=tol_px, margin=margin, lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, ends=ends)
+                          tol_px=tol_px, margin=margin, lateral_px=lateral_px, min_samples=min_samples, anchor=anchor, ends=ends,
+                          after=tuple(after) if end_rows_from_rounds else None)
             return stats
     # the NumPy path of RigModel (no camera table, or a pixel outside it): round by round
     return _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, model=model, depth_range_mm=depth_range_mm, grid=grid,
@@ -912,7 +954,7 @@ def _by_rounds(q, fam, sid, piece, ts, tangent, index, seed_jid, *, model, depth
 
 
 def _after_rounds(stats, q, fam, sid, piece, ts, tangent, index, seed_jid, was_unlabelled, *, model, depth_range_mm, grid, sigma_px, reach_px,
-                  across_px, mix_sigma, trim_px, tol_px, margin, lateral_px, min_samples, anchor, ends) -> None:
+                  across_px, mix_sigma, trim_px, tol_px, margin, lateral_px, min_samples, anchor, ends, after=None) -> None:
     """Decision 0106's pass after the rounds, into stats: the trimmed ends facing an unlabelled piece (`_label_ends`,
     when ends)."""
     if ends and stats["samples"] == 0:
@@ -922,5 +964,5 @@ def _after_rounds(stats, q, fam, sid, piece, ts, tangent, index, seed_jid, was_u
     elif ends:
         stats["samples_ends"] = _label_ends(q, fam, sid, piece, tangent, index, seed_jid, was_unlabelled, model=model,
                                             depth_range_mm=depth_range_mm, grid=grid, reach_px=reach_px, lateral_px=lateral_px, tol_px=tol_px,
-                                            anchor=anchor)
+                                            anchor=anchor, after=after)
         stats["samples"] += stats["samples_ends"]
