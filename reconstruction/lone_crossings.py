@@ -58,6 +58,7 @@ from reconstruction.depth_range_labels import _k_stretches_meet, index_stretch
 from reconstruction.geometry import depth_cam, epipolar_lines, triangulate_rays
 from reconstruction._jit import njit
 from reconstruction._label_kernels import _union_find_join
+from reconstruction.trace_ends import mean_shift_split
 from reconstruction.rigmodel import RigModel, _k_cam_bilinear, _k_sheet_depth
 
 
@@ -69,7 +70,8 @@ class LoneCrossingOptions:
     one family has a single end (a T whose stem is that family) is kept too. check_samples: the samples per piece
     (evenly spaced, both ends included) whose stretches and sheet depths are checked. free_end_trim: the samples
     within this many `trim_px` of a piece's end at no accepted node stay unlabelled. node_end_trim: the same at an
-    end at an accepted node. far_end_check, cross_tol_px: step 6."""
+    end at an accepted node. far_end_check, cross_tol_px: step 6. far_end_split: a piece whose far end fails step
+    6 keeps its label from the node out to the ridge brightness's likeliest step (step 6b; needs the ridge)."""
 
     enabled: bool = True
     min_samples: int = 4
@@ -83,6 +85,7 @@ class LoneCrossingOptions:
     node_end_trim: float = 1.0
     far_end_check: bool = True
     cross_tol_px: float = 1.0
+    far_end_split: bool = True
 
 
 @njit
@@ -484,6 +487,16 @@ def _k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, done
     return X, okf
 
 
+def _far_split(ridge, sid, a, b, side):
+    """Step 6b for the piece at trace positions a … b − 1 whose far end is side (0: start, 1: stop): the ridge
+    brightness's maximum-likelihood step (`trace_ends.mean_shift_split`, decision 0132) splits it; returns (side,
+    the position the kept part (the node's side) ends before (side 1) or starts at (side 0))."""
+    s = int(mean_shift_split(np.ascontiguousarray(ridge[sid[a:b]], np.float64)))
+    if s < 0:
+        return side, (a if side == 1 else b)
+    return side, a + s
+
+
 @njit
 def _k_label_pieces(pp, kk, at_node, starts, stops, ts, sid, index, seed, has_seed, t_node, t_free, trim_px):
     """Step 5 for the pieces pp (ascending) with their one index kk: every sample farther than t_node (an end at
@@ -658,12 +671,13 @@ def _unique(a: np.ndarray) -> np.ndarray:
 def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, depth_range_mm, trim_px: float, reach_px: float,
                          lateral_px: float, tol_px: float, noise_floor_px: float,
                          options: LoneCrossingOptions = LoneCrossingOptions(), seed: np.ndarray | None = None,
-                         debug: dict | None = None) -> dict:
+                         ridge: np.ndarray | None = None, debug: dict | None = None) -> dict:
     """Label the pieces at crossings of unlabelled pieces (module doc). q (P, 2), fam (P,), index (P,) (NaN: none;
     written in place); the traces as `labelling.label_samples` builds them: sid (n,), piece (n,) non-decreasing, ts
     (n,) position along the piece (px). seed (P,) int (`labelling.label_samples`' junction seeds, UNLABELLED where
     none; None: not written): the labelled samples within 2·trim_px past the trim of an end at an accepted node
-    become seeds with the piece's index. Returns counts."""
+    become seeds with the piece's index. ridge (P,): the ridge brightness at the samples (`labelling._ridge_brightness`;
+    None: step 6b off). Returns counts."""
     stats = {"nodes": 0, "nodes_labelled": 0, "samples": 0}
     n = len(piece)
     if n == 0:
@@ -887,6 +901,7 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     # labelled or not, crossing its end line ahead of both within reach_px) must meet it, on the piece's sheet,
     # within cross_tol_px of a line of the other family inside the volume; a piece that runs across a depth edge onto
     # a collinear line of another surface meets the other family's lines there anywhere (decisions 0066, 0084)
+    cut_at: dict = {}  # step 6b: piece -> the trace position its kept part ends before (far end at stop) or starts at
     if proposals and options.far_end_check:
         # the end lines of every piece long enough (labelled ones too): the lines a free end may cross; fitted
         # where read (the open pieces' are step 1's)
@@ -912,10 +927,21 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
                 _, zf, _, dist_f = model.sheet_check(Xf[sel], ff, kf)
                 bad_far = ~((dist_f <= options.cross_tol_px) & (zf >= z0) & (zf <= z1))
                 if debug is not None:
-                    debug["far"] = [(Xf[i], int(ff[t]), int(kf[t]), float(dist_f[t]), float(zf[t]), bool(bad_far[t])) for t, i in enumerate(sel.tolist())]
+                    debug["far"] = [(Xf[i], int(ff[t]), int(kf[t]), float(dist_f[t]), float(zf[t]), bool(bad_far[t]), int(fr_p[i]), int(fr_e[i])) for t, i in enumerate(sel.tolist())]
+                split = options.far_end_split and ridge is not None and len(ridge) == len(q)
                 for t in np.flatnonzero(bad_far).tolist():
-                    proposals[fr_p[sel[t]]] = set()
+                    p_, e_ = fr_p[sel[t]], int(fr_e[sel[t]])
                     stats["pieces_far_end"] = stats.get("pieces_far_end", 0) + 1
+                    if split and p_ not in cut_at and (e_ ^ 1) in at_node:
+                        # 6b. the edge at the likeliest step of the ridge brightness between the node and the far end
+                        side, at = _far_split(ridge, sid, int(starts[p_]), int(stops[p_]), e_ % 2)
+                        if (at - int(starts[p_]) if side == 1 else int(stops[p_]) - at) >= options.min_samples:
+                            cut_at[p_] = (side, at)
+                        else:
+                            proposals[p_] = set()
+                    else:
+                        proposals[p_] = set()
+                        cut_at.pop(p_, None)
     # 5. the pieces whose accepted nodes agree, without their samples within trim_px of either end (an end at no
     # accepted node is free (a silhouette, a shadow, another crossing): the cut line's ridge is pulled over the
     # smoothing kernel's reach there, `free_end_trim` smoothing scales); the labelled samples next to a node are
@@ -934,6 +960,15 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     if pp:
         at_mask = np.zeros(2 * n_p, np.bool_)
         at_mask[list(at_node)] = True
+        if cut_at:
+            # step 6b: the cut pieces end (start) at their edge, a free end there
+            starts64, stops64 = starts64.copy(), stops64.copy()
+            for p_, (side, at) in cut_at.items():
+                if side == 1:
+                    stops64[p_] = at
+                else:
+                    starts64[p_] = at
+                stats["pieces_far_split"] = stats.get("pieces_far_split", 0) + 1
         stats["samples"] += int(_k_label_pieces(np.array(pp, np.int64), np.array(kp, np.int64), at_mask, starts64, stops64, ts, sid, index,
                                                 seed if seed is not None else np.zeros(1, np.int64), seed is not None,
                                                 float(options.node_end_trim * trim_px), float(options.free_end_trim * trim_px),
