@@ -1612,7 +1612,7 @@ def label_samples(
                                                                              min_angle_deg=options.continue_gap_deg or 45.0)),
                                       lateral_px=options.seed_lateral_px * cell, tol_px=options.depth_range_tol * noise_floor,
                                       noise_floor_px=noise_floor, seed=seed, ridge=ridge,
-                                      options=LoneCrossingOptions(far_end_split=options.lone_far_split))
+                                      options=LoneCrossingOptions(far_end_split=options.lone_far_split, far_split_step=options.max_ridge_step))
             stats["samples_lone_crossings"] = lc["samples"]
             _guard()
         if options.surface_labels and options.cross_pieces and model is not None and grid is not None:
