@@ -948,7 +948,7 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
                 _, zf, _, dist_f = model.sheet_check(Xf[sel], ff, kf)
                 bad_far = ~((dist_f <= options.cross_tol_px) & (zf >= z0) & (zf <= z1))
                 if debug is not None:
-                    debug["far"] = [(Xf[i], int(ff[t]), int(kf[t]), float(dist_f[t]), float(zf[t]), bool(bad_far[t]), int(fr_p[i]), int(fr_e[i])) for t, i in enumerate(sel.tolist())]
+                    debug["far"] = [(Xf[i], int(ff[t]), int(kf[t]), float(dist_f[t]), float(zf[t]), bool(bad_far[t]), int(fr_p[i]), int(fr_e[i]), bool(onf[i])) for t, i in enumerate(sel.tolist())]
                 for t in np.flatnonzero(bad_far).tolist():
                     p_, e_ = fr_p[sel[t]], int(fr_e[sel[t]])
                     stats["pieces_far_end"] = stats.get("pieces_far_end", 0) + 1
