@@ -180,8 +180,13 @@ def test_far_end_kernel_equals_the_full_one(step_inputs):
         args = (float(kw["reach_px"]), float(kw["lateral_px"]), 3.0, float(np.cos(np.deg2rad(25.0))), float(np.sin(np.deg2rad(10.0))))
         X0, ok0 = ref._k_free_end_crossings(free, e_fam, ok_all, e_piece, e_pt, e_dir, e_end, *args)
         p1, d1, r1, en1, k1 = lc._k_end_lines(q, sid, ts, starts, stops, open_mask, trim)
-        X1, ok1 = lc._k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, np.repeat(open_mask, 2), p1, d1, r1, en1, k1,
-                                 trim, *args)
+        X1, ok1, on1 = lc._k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, np.repeat(open_mask, 2), p1, d1, r1, en1,
+                                      k1, trim, *args, False)
         assert np.array_equal(X0, X1, equal_nan=True) and np.array_equal(ok0, ok1)
+        # decision 0164: with own_line the verdict is the same, and "goes on" is also read where the other line runs through
+        X2, ok2, on2 = lc._k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, np.repeat(open_mask, 2), p1, d1, r1, en1,
+                                      k1, trim, *args, True)
+        assert np.array_equal(X1, X2, equal_nan=True) and np.array_equal(ok1, ok2)
+        assert np.all(on2[on1]) and not np.any(on2 & ~ok2)
         checked += int(np.isfinite(X0[:, 0]).sum())
     assert checked > 20
