@@ -36,7 +36,7 @@ from reconstruction.edge_cuts import edge_misfits
 from reconstruction.extraction import GridObservation
 from reconstruction.geometry import camera_rays_proj, epipolar_lines, paper_epipolar_mb
 from reconstruction.piece_junctions import label_piece_junctions
-from reconstruction.lone_crossings import label_lone_crossings
+from reconstruction.lone_crossings import LoneCrossingOptions, label_lone_crossings
 from reconstruction.piece_seeds import seed_one_sided
 from reconstruction.surface_labels import label_from_surface
 from reconstruction.limb_lines import label_beside_lines
@@ -980,6 +980,9 @@ class TraceOptions:
     lone_crossings: label the pieces at a crossing of unlabelled pieces (an X, or a T) from the crossing's own epipolar
         residual among the junctions the working volume leaves for its pieces, judged as a lone found junction
         (`reconstruction.lone_crossings`, decision 0139); runs after the piece junctions.
+    lone_far_split: a lone crossing's piece whose free far end fails its crossing check (decision 0139's step 6)
+        keeps its label from the node out to the likeliest ridge-brightness step (the depth edge, decision 0132)
+        instead of losing it whole (decision 0164).
     frame_through: in the piece junctions' X test and T stems, a family with one end at a node (inside the frame by
         one cell) whose line leaves the camera frame within the continuation's reach past it runs through it: the
         frame is no edge of the surface (decision 0143).
@@ -1032,6 +1035,7 @@ class TraceOptions:
     ambiguity_guard: bool = True
     ambiguity_guard_protect_seeded: bool = True
     lone_crossings: bool = True
+    lone_far_split: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -1647,7 +1651,8 @@ def label_samples(
                                       reach_px=0.5 * (cell + crossing_gap_px(sigma_px, mix_sigma=options.mix_sigma, trim_sigma=options.cross_trim_sigma,
                                                                              min_angle_deg=options.continue_gap_deg or 45.0)),
                                       lateral_px=options.seed_lateral_px * cell, tol_px=options.depth_range_tol * noise_floor,
-                                      noise_floor_px=noise_floor, seed=seed)
+                                      noise_floor_px=noise_floor, seed=seed, ridge=ridge,
+                                      options=LoneCrossingOptions(far_end_split=options.lone_far_split, far_split_step=options.max_ridge_step))
             stats["samples_lone_crossings"] = lc["samples"]
             _guard()
         if options.surface_labels and options.cross_pieces and model is not None and grid is not None:

@@ -58,6 +58,7 @@ from reconstruction.depth_range_labels import _k_stretches_meet, index_stretch
 from reconstruction.geometry import depth_cam, epipolar_lines, triangulate_rays
 from reconstruction._jit import njit
 from reconstruction._label_kernels import _union_find_join
+from reconstruction.trace_ends import mean_shift_split
 from reconstruction.rigmodel import RigModel, _k_cam_bilinear, _k_sheet_depth
 
 
@@ -69,7 +70,9 @@ class LoneCrossingOptions:
     one family has a single end (a T whose stem is that family) is kept too. check_samples: the samples per piece
     (evenly spaced, both ends included) whose stretches and sheet depths are checked. free_end_trim: the samples
     within this many `trim_px` of a piece's end at no accepted node stay unlabelled. node_end_trim: the same at an
-    end at an accepted node. far_end_check, cross_tol_px: step 6."""
+    end at an accepted node. far_end_check, cross_tol_px: step 6. far_end_split, far_split_step: a piece whose far end
+    fails step 6 keeps its label out to a ridge-brightness step of this share, or whole at a T (step 6b, `_far_split`;
+    needs the ridge; the share is `TraceOptions.max_ridge_step`, the trace cut's)."""
 
     enabled: bool = True
     min_samples: int = 4
@@ -83,6 +86,8 @@ class LoneCrossingOptions:
     node_end_trim: float = 1.0
     far_end_check: bool = True
     cross_tol_px: float = 1.0
+    far_end_split: bool = True
+    far_split_step: float = 0.15
 
 
 @njit
@@ -390,17 +395,20 @@ def _end_radius(q, sid, ts, a, b, e, trim_px):
 
 @njit
 def _k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, done, pts, dirs, rms, ends, ok, trim_px, reach_px,
-                lateral_px, merge_px, cos_opp, sin_min):
+                lateral_px, merge_px, cos_opp, sin_min, own_line):
     """Step 6's crossings, as decision 0139's `_k_free_end_crossings` (kept in the tests' reference) computed them
     over every long piece's end line: for each free end, the nearest crossing X with a usable end line of the other
     family and whether it counts (X (m, 2), ok (m,)). Here the end lines of the long pieces (long_mask) are fitted
     only where read: `done` marks the ends whose fit (pts, dirs, rms, ok; updated in place) is already there; the
     other family's ends only within 2·reach_px, the own family's only where the other family's line does not run
-    through X, and not those that cannot reach X (decision 0142's bound)."""
+    through X, and not those that cannot reach X (decision 0142's bound). on (m,): the free end's own line goes on
+    beyond X (an end of its family facing back, its end line through X); with own_line also where the other family's
+    line runs through X (step 6b), else only where it does not."""
     m = free.shape[0]
     n = e_fam.shape[0]
     X = np.full((m, 2), np.nan)
     okf = np.zeros(m, np.bool_)
+    on = np.zeros(m, np.bool_)
     xs = np.empty((n, 2))
     ids = np.empty(n, np.int64)
     rad = np.full(n, -1.0)
@@ -453,7 +461,8 @@ def _k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, done
                     through = True
         if through:
             okf[u] = True
-            continue
+            if not own_line:
+                continue
         goes_on = False
         for g in range(n):
             if e_fam[g] != fa or e_piece[g] == e_piece[a] or not long_mask[e_piece[g]]:
@@ -480,8 +489,32 @@ def _k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, done
             if lat <= lateral_px:
                 goes_on = True
                 break
-        okf[u] = goes_on
-    return X, okf
+        on[u] = goes_on
+        okf[u] = okf[u] or goes_on
+    return X, okf, on
+
+
+def _far_split(ridge, sid, a, b, side, min_step, goes_on, min_samples):
+    """Step 6b for the piece at trace positions a … b − 1 (its other end at an accepted node) whose far end, side
+    (0: start, 1: stop), fails step 6: (side, the position its labelled part ends before (side 1) or starts at
+    (side 0)), or None (the piece stays unlabelled). The ridge brightness's maximum-likelihood step along the piece
+    (`trace_ends.mean_shift_split`, decision 0132) is the depth edge where the two sides' means differ by at least
+    min_step of the brighter (an edge the piece shows: the piece keeps the node's side); without such a step, a
+    piece whose own line goes on beyond the far crossing (goes_on: an X there names another line) stays
+    unlabelled, and one whose line ends there (a T: the other family's line runs across the end, in front of it
+    or beyond a shadow's edge) keeps its whole length. The kept part needs min_samples samples."""
+    r = np.ascontiguousarray(ridge[sid[a:b]], np.float64)
+    s = int(mean_shift_split(r))
+    if s < 1:
+        return None
+    m0 = float(r[:s].mean())
+    m1 = float(r[s:].mean())
+    if abs(m1 - m0) >= min_step * max(m0, m1, 1e-9):
+        at = a + s
+        return (side, at) if (at - a if side == 1 else b - at) >= min_samples else None
+    if goes_on:
+        return None
+    return side, (b if side == 1 else a)
 
 
 @njit
@@ -658,12 +691,13 @@ def _unique(a: np.ndarray) -> np.ndarray:
 def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, depth_range_mm, trim_px: float, reach_px: float,
                          lateral_px: float, tol_px: float, noise_floor_px: float,
                          options: LoneCrossingOptions = LoneCrossingOptions(), seed: np.ndarray | None = None,
-                         debug: dict | None = None) -> dict:
+                         ridge: np.ndarray | None = None, debug: dict | None = None) -> dict:
     """Label the pieces at crossings of unlabelled pieces (module doc). q (P, 2), fam (P,), index (P,) (NaN: none;
     written in place); the traces as `labelling.label_samples` builds them: sid (n,), piece (n,) non-decreasing, ts
     (n,) position along the piece (px). seed (P,) int (`labelling.label_samples`' junction seeds, UNLABELLED where
     none; None: not written): the labelled samples within 2·trim_px past the trim of an end at an accepted node
-    become seeds with the piece's index. Returns counts."""
+    become seeds with the piece's index. ridge (P,): the ridge brightness at the samples (`labelling._ridge_brightness`;
+    None: step 6b off). Returns counts."""
     stats = {"nodes": 0, "nodes_labelled": 0, "samples": 0}
     n = len(piece)
     if n == 0:
@@ -887,6 +921,7 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     # labelled or not, crossing its end line ahead of both within reach_px) must meet it, on the piece's sheet,
     # within cross_tol_px of a line of the other family inside the volume; a piece that runs across a depth edge onto
     # a collinear line of another surface meets the other family's lines there anywhere (decisions 0066, 0084)
+    cut_at: dict = {}  # step 6b: piece -> the trace position its kept part ends before (far end at stop) or starts at
     if proposals and options.far_end_check:
         # the end lines of every piece long enough (labelled ones too): the lines a free end may cross; fitted
         # where read (the open pieces' are step 1's)
@@ -902,9 +937,10 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
         if fr_e:
             fr_e = np.array(fr_e, np.int64)
             done = np.repeat(open_mask, 2)
-            Xf, okf = _k_far_ends(fr_e, e_fam, e_piece, q, sid, ts, starts64, stops64, long_mask, done, e_pt, e_dir, e_rms, e_end, ok,
-                                  float(trim_px), float(reach_px), float(lateral_px), float(merge_px), float(cos_opp),
-                                  float(np.sin(np.deg2rad(10.0))))
+            split = options.far_end_split and ridge is not None and len(ridge) == len(q)
+            Xf, okf, onf = _k_far_ends(fr_e, e_fam, e_piece, q, sid, ts, starts64, stops64, long_mask, done, e_pt, e_dir, e_rms, e_end, ok,
+                                       float(trim_px), float(reach_px), float(lateral_px), float(merge_px), float(cos_opp),
+                                       float(np.sin(np.deg2rad(10.0))), bool(split))
             if okf.any():
                 sel = np.flatnonzero(okf)
                 ff = e_fam[fr_e[sel]]
@@ -912,10 +948,20 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
                 _, zf, _, dist_f = model.sheet_check(Xf[sel], ff, kf)
                 bad_far = ~((dist_f <= options.cross_tol_px) & (zf >= z0) & (zf <= z1))
                 if debug is not None:
-                    debug["far"] = [(Xf[i], int(ff[t]), int(kf[t]), float(dist_f[t]), float(zf[t]), bool(bad_far[t])) for t, i in enumerate(sel.tolist())]
+                    debug["far"] = [(Xf[i], int(ff[t]), int(kf[t]), float(dist_f[t]), float(zf[t]), bool(bad_far[t]), int(fr_p[i]), int(fr_e[i]), bool(onf[i])) for t, i in enumerate(sel.tolist())]
                 for t in np.flatnonzero(bad_far).tolist():
-                    proposals[fr_p[sel[t]]] = set()
+                    p_, e_ = fr_p[sel[t]], int(fr_e[sel[t]])
                     stats["pieces_far_end"] = stats.get("pieces_far_end", 0) + 1
+                    cut = None
+                    if split and p_ not in cut_at and (e_ ^ 1) in at_node:
+                        cut = _far_split(ridge, sid, int(starts[p_]), int(stops[p_]), e_ % 2, float(options.far_split_step),
+                                         bool(onf[sel[t]]), int(options.min_samples))
+                    if cut is None:
+                        proposals[p_] = set()
+                        cut_at.pop(p_, None)
+                    else:
+                        cut_at[p_] = cut
+                        stats["pieces_far_split"] = stats.get("pieces_far_split", 0) + 1
     # 5. the pieces whose accepted nodes agree, without their samples within trim_px of either end (an end at no
     # accepted node is free (a silhouette, a shadow, another crossing): the cut line's ridge is pulled over the
     # smoothing kernel's reach there, `free_end_trim` smoothing scales); the labelled samples next to a node are
@@ -934,6 +980,14 @@ def label_lone_crossings(q, fam, sid, piece, ts, index, *, model: RigModel, dept
     if pp:
         at_mask = np.zeros(2 * n_p, np.bool_)
         at_mask[list(at_node)] = True
+        if cut_at:
+            # step 6b: the cut pieces end (start) at their edge, a free end there
+            starts64, stops64 = starts64.copy(), stops64.copy()
+            for p_, (side, at) in cut_at.items():
+                if side == 1:
+                    stops64[p_] = at
+                else:
+                    starts64[p_] = at
         stats["samples"] += int(_k_label_pieces(np.array(pp, np.int64), np.array(kp, np.int64), at_mask, starts64, stops64, ts, sid, index,
                                                 seed if seed is not None else np.zeros(1, np.int64), seed is not None,
                                                 float(options.node_end_trim * trim_px), float(options.free_end_trim * trim_px),

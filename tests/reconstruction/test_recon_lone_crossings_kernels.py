@@ -62,6 +62,7 @@ def _run(fn, call, options=None, seed=True, **extra):
     if options is not None:
         kw["options"] = options
     kw["seed"] = np.copy(kw["seed"]) if (seed and kw.get("seed") is not None) else None
+    kw.pop("ridge", None)  # without the ridge, decision 0164's step 6b is off: the step as 0139 / 0142 made it
     index = np.copy(index)
     stats = fn(q, fam, sid, piece, ts, index, **kw, **extra)
     return stats, index, kw["seed"]
@@ -106,7 +107,7 @@ def test_inputs_reach_every_compiled_stage(step_inputs, monkeypatch):
     stats = [_run(lc.label_lone_crossings, call)[0] for call in step_inputs]
     assert set(seen) == {"_k_nodes", "_k_group_samples", "_k_check_choice", "_k_far_ends", "_k_label_pieces"}
     assert all(out[0] for out in seen["_k_check_choice"]) and all(out[0] for out in seen["_k_group_samples"])
-    assert sum(s.get("pieces_far_end", 0) for s in stats) > 0 or any(not ok.all() for _, ok in seen["_k_far_ends"])
+    assert sum(s.get("pieces_far_end", 0) for s in stats) > 0 or any(not out[1].all() for out in seen["_k_far_ends"])
     assert sum(s["nodes"] - s["nodes_labelled"] for s in stats) > 0  # ambiguous nodes too
 
 
@@ -179,8 +180,13 @@ def test_far_end_kernel_equals_the_full_one(step_inputs):
         args = (float(kw["reach_px"]), float(kw["lateral_px"]), 3.0, float(np.cos(np.deg2rad(25.0))), float(np.sin(np.deg2rad(10.0))))
         X0, ok0 = ref._k_free_end_crossings(free, e_fam, ok_all, e_piece, e_pt, e_dir, e_end, *args)
         p1, d1, r1, en1, k1 = lc._k_end_lines(q, sid, ts, starts, stops, open_mask, trim)
-        X1, ok1 = lc._k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, np.repeat(open_mask, 2), p1, d1, r1, en1, k1,
-                                 trim, *args)
+        X1, ok1, on1 = lc._k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, np.repeat(open_mask, 2), p1, d1, r1, en1,
+                                      k1, trim, *args, False)
         assert np.array_equal(X0, X1, equal_nan=True) and np.array_equal(ok0, ok1)
+        # decision 0164: with own_line the verdict is the same, and "goes on" is also read where the other line runs through
+        X2, ok2, on2 = lc._k_far_ends(free, e_fam, e_piece, q, sid, ts, starts, stops, long_mask, np.repeat(open_mask, 2), p1, d1, r1, en1,
+                                      k1, trim, *args, True)
+        assert np.array_equal(X1, X2, equal_nan=True) and np.array_equal(ok1, ok2)
+        assert np.all(on2[on1]) and not np.any(on2 & ~ok2)
         checked += int(np.isfinite(X0[:, 0]).sum())
     assert checked > 20
