@@ -22,7 +22,8 @@ import numpy as np
 
 from reconstruction._ambiguity_kernels import component_edge_steps, neighbour_noise2
 from reconstruction._jit import njit
-from reconstruction._label_kernels import clean_edges_walk, group_order, median_finite, offset_choice_b, propagate, write_component
+from reconstruction._label_kernels import (clean_edges_walk, gather_members, group_order, median_finite, offset_choice_b, propagate,
+                                          write_component)
 from reconstruction.edge_cuts import edge_misfits
 from reconstruction.residual_clusters import elevated_pieces, kept_adjacency
 
@@ -51,24 +52,6 @@ def _is_ambiguous(n_eff, s1, s2, noise_floor2, chi2, rms_ratio2):
     if noise_floor2 > sigma2:
         sigma2 = noise_floor2
     return n_eff * (s2 - s1) / sigma2 < chi2 or s2 < rms_ratio2 * sigma2
-
-
-@njit
-def _gather(members, rel, ln, xy):
-    m = members.shape[0]
-    rm = np.empty((m, 2), np.int64)
-    lm = np.empty((m, 3))
-    xm = np.empty((m, 2))
-    for p in range(m):
-        i = members[p]
-        rm[p, 0] = rel[i, 0]
-        rm[p, 1] = rel[i, 1]
-        lm[p, 0] = ln[i, 0]
-        lm[p, 1] = ln[i, 1]
-        lm[p, 2] = ln[i, 2]
-        xm[p, 0] = xy[i, 0]
-        xm[p, 1] = xy[i, 1]
-    return rm, lm, xm
 
 
 @njit
@@ -343,7 +326,7 @@ def work_loop(order, bounds, g_status, g_fail, g_ok, g_s1, g_s2, g_neff, g_off, 
             reason = -1  # −1: accepted; else an L_* index
             has_limit = False
             limit = 0.0
-            rm, lm, xm = _gather(members, rel, lines, xy_cam)
+            rm, lm, xm = gather_members(members, rel, lines, xy_cam)
             if g >= 0:
                 b0 = bounds[g]
                 st = g_status[g]

@@ -3121,6 +3121,26 @@ def epipolar_from_rays(d, t):
 
 
 @njit
+def gather_members(members, rel, ln, xy):
+    """The members' rows (members (m,) junction ids) of rel (M, 2) int64, ln (M, 3) and xy (M, 2), as new arrays:
+    `offset_choice_b`'s inputs for one component."""
+    m = members.shape[0]
+    rm = np.empty((m, 2), np.int64)
+    lm = np.empty((m, 3))
+    xm = np.empty((m, 2))
+    for p in range(m):
+        i = members[p]
+        rm[p, 0] = rel[i, 0]
+        rm[p, 1] = rel[i, 1]
+        lm[p, 0] = ln[i, 0]
+        lm[p, 1] = ln[i, 1]
+        lm[p, 2] = ln[i, 2]
+        xm[p, 0] = xy[i, 0]
+        xm[p, 1] = xy[i, 1]
+    return rm, lm, xm
+
+
+@njit
 def offset_choice_groups(order, bounds, min_component, rel, ln, xy_cam, xy_junction, index_min, index_max, fx, n_refs,
                          band_px, min_inside, cap2, R, t, z_min, z_max, outlier_sigma, max_residual_px, noise_floor2, chi2,
                          rms_ratio2, labels, residual):
@@ -3154,18 +3174,7 @@ def offset_choice_groups(order, bounds, min_component, rel, ln, xy_cam, xy_junct
         m = bounds[g + 1] - b0
         if m < min_component:
             continue
-        rg = np.empty((m, 2), np.int64)
-        lg = np.empty((m, 3))
-        xg = np.empty((m, 2))
-        for a in range(m):
-            i = order[b0 + a]
-            rg[a, 0] = rel[i, 0]
-            rg[a, 1] = rel[i, 1]
-            lg[a, 0] = ln[i, 0]
-            lg[a, 1] = ln[i, 1]
-            lg[a, 2] = ln[i, 2]
-            xg[a, 0] = xy_cam[i, 0]
-            xg[a, 1] = xy_cam[i, 1]
+        rg, lg, xg = gather_members(order[b0 : b0 + m], rel, ln, xy_cam)
         st, nf, okg, a1, a2, ne, ob, r_full, inside = offset_choice_b(rg, lg, xg, xy_junction, blocks, _BLOCK, index_min, index_max, fx, n_refs,
                                                                    band_px, min_inside, cap2, R, t, z_min, z_max)
         status[g] = st

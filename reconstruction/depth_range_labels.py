@@ -108,30 +108,47 @@ def _k_open_positions(sid, piece, index, n_p, min_samples):
     return out
 
 
-@njit
-def _fractional_k(c, offs, index_min):
-    """`_fractional` for one offset c among offs (increasing)."""
+@njit(inline="always")
+def _fractional_k_from(c, offs, index_min, h):
+    """`_fractional` for one offset c among offs (increasing), its segment found by the bisection when h < 0, else
+    (offs strictly increasing) by a walk from segment h (the previous sample's: a piece's samples lie close
+    together): (the value, the segment for the next call). With strictly increasing offs the bisection's segment is
+    the one lo <= L − 2 with offs[lo] <= c and (lo = L − 2 or c < offs[lo + 1]): unique, so the walk finds the same
+    one and the same value bit for bit (decision 0163)."""
     L = offs.shape[0]
     if c < offs[0]:
-        return index_min + (c - offs[0]) / (offs[1] - offs[0])
+        return index_min + (c - offs[0]) / (offs[1] - offs[0]), h
     if c > offs[L - 1]:
-        return index_min + L - 1 + (c - offs[L - 1]) / (offs[L - 1] - offs[L - 2])
-    lo = 0
-    hi = L - 1
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        if offs[mid] <= c:
-            lo = mid
-        else:
-            hi = mid
-    d = offs[hi] - offs[lo]
-    return index_min + lo + ((c - offs[lo]) / d if d > 0 else 0.0)
+        return index_min + L - 1 + (c - offs[L - 1]) / (offs[L - 1] - offs[L - 2]), h
+    if h < 0:  # no segment yet (a piece's first sample, or no walk): the bisection
+        lo = 0
+        hi = L - 1
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if offs[mid] <= c:
+                lo = mid
+            else:
+                hi = mid
+    else:
+        lo = min(h, L - 2)
+        while lo > 0 and offs[lo] > c:
+            lo -= 1
+        while lo < L - 2 and offs[lo + 1] <= c:
+            lo += 1
+    d = offs[lo + 1] - offs[lo]
+    return index_min + lo + ((c - offs[lo]) / d if d > 0 else 0.0), lo
 
 
 @njit
-def _k_stretch_at(ax, ay, az, fam, t, z, Kp, dist, has_dist, cu, cv, nn, offs, index_min):
-    """The family's fractional line coordinate of the point t + z·(ax, ay, az) (projector frame; (ax, ay, az) =
-    R·(x, y, 1), the camera ray's direction) seen by the projector (NaN behind it)."""
+def _fractional_k(c, offs, index_min):
+    """`_fractional` for one offset c among offs (increasing): `_fractional_k_from`'s bisection."""
+    return _fractional_k_from(c, offs, index_min, -1)[0]
+
+
+@njit(inline="always")
+def _sheet_offset(ax, ay, az, fam, t, z, Kp, dist, has_dist, cu, cv, nn):
+    """The family's line offset Y − n·X (projector px, the pattern's frame) of the point t + z·(ax, ay, az)
+    (projector frame; (ax, ay, az) = R·(x, y, 1), the camera ray's direction) seen by the projector; NaN behind it."""
     px = t[0] + z * ax
     py = t[1] + z * ay
     pz = t[2] + z * az
@@ -147,8 +164,17 @@ def _k_stretch_at(ax, ay, az, fam, t, z, Kp, dist, has_dist, cu, cv, nn, offs, i
         u, v = ud, vd
     X = Kp[0, 0] * u + Kp[0, 1] * v + Kp[0, 2] - cu
     Y = Kp[1, 1] * v + Kp[1, 2] - cv
-    f = fam - 1
-    return _fractional_k(Y - nn[f] * X, offs[f], index_min)
+    return Y - nn[fam - 1] * X
+
+
+@njit
+def _k_stretch_at(ax, ay, az, fam, t, z, Kp, dist, has_dist, cu, cv, nn, offs, index_min):
+    """The family's fractional line coordinate of the point t + z·(ax, ay, az) (projector frame; (ax, ay, az) =
+    R·(x, y, 1), the camera ray's direction) seen by the projector (NaN behind it)."""
+    c = _sheet_offset(ax, ay, az, fam, t, z, Kp, dist, has_dist, cu, cv, nn)
+    if c != c:
+        return np.nan
+    return _fractional_k(c, offs[fam - 1], index_min)
 
 
 @njit
@@ -191,56 +217,13 @@ def _k_stretches_meet(xy, a, b, f, R, t, z0, z1, Kp, dist, has_dist, cu, cv, nn,
 
 
 @njit(inline="always")
-def _fractional_k_from(c, offs, index_min, h):
-    """`_fractional_k` for offs strictly increasing, its segment found by a walk from segment h (the previous
-    sample's: a piece's samples lie close together) instead of the bisection: (the same value, bit for bit, and the
-    segment for the next call; h < 0: no segment yet, found by the bisection). With strictly increasing offs the
-    bisection's segment is the one lo <= L − 2 with offs[lo] <= c and (lo = L − 2 or c < offs[lo + 1]): unique, so
-    the walk finds the same one (decision 0163)."""
-    L = offs.shape[0]
-    if c < offs[0]:
-        return index_min + (c - offs[0]) / (offs[1] - offs[0]), h
-    if c > offs[L - 1]:
-        return index_min + L - 1 + (c - offs[L - 1]) / (offs[L - 1] - offs[L - 2]), h
-    if h < 0:  # no segment yet (a piece's first sample): `_fractional_k`'s bisection
-        lo = 0
-        hi = L - 1
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            if offs[mid] <= c:
-                lo = mid
-            else:
-                hi = mid
-    else:
-        lo = min(h, L - 2)
-        while lo > 0 and offs[lo] > c:
-            lo -= 1
-        while lo < L - 2 and offs[lo + 1] <= c:
-            lo += 1
-    d = offs[lo + 1] - offs[lo]
-    return index_min + lo + ((c - offs[lo]) / d if d > 0 else 0.0), lo
-
-
-@njit(inline="always")
 def _k_stretch_at_from(ax, ay, az, fam, t, z, Kp, dist, has_dist, cu, cv, nn, offs, index_min, h):
-    """`_k_stretch_at` with `_fractional_k_from` (offs strictly increasing): (the same value, the segment)."""
-    px = t[0] + z * ax
-    py = t[1] + z * ay
-    pz = t[2] + z * az
-    if not pz > 0:
+    """`_k_stretch_at` with `_fractional_k_from`'s walk from segment h (offs strictly increasing): (the same value,
+    the segment)."""
+    c = _sheet_offset(ax, ay, az, fam, t, z, Kp, dist, has_dist, cu, cv, nn)
+    if c != c:
         return np.nan, h
-    u = px / pz
-    v = py / pz
-    if has_dist:
-        r2 = u * u + v * v
-        radial = 1 + r2 * (dist[0] + r2 * (dist[1] + r2 * dist[4]))
-        ud = u * radial + 2 * dist[2] * u * v + dist[3] * (r2 + 2 * u * u)
-        vd = v * radial + dist[2] * (r2 + 2 * v * v) + 2 * dist[3] * u * v
-        u, v = ud, vd
-    X = Kp[0, 0] * u + Kp[0, 1] * v + Kp[0, 2] - cu
-    Y = Kp[1, 1] * v + Kp[1, 2] - cv
-    f = fam - 1
-    return _fractional_k_from(Y - nn[f] * X, offs[f], index_min, h)
+    return _fractional_k_from(c, offs[fam - 1], index_min, h)
 
 
 @njit
